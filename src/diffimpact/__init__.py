@@ -1,0 +1,38 @@
+"""diffimpact: differentiable impact simulation and parameter identification in JAX.
+
+Importing diffimpact turns on JAX's 64-bit mode (``jax_enable_x64``): impact
+physics spans interferences of micrometres against radii of millimetres and
+forces of kilonewtons over microseconds, and float32 loses the gradients at the
+tolerances where the phase switches are resolved.  Set the environment variable
+``DIFFIMPACT_NO_X64=1`` before importing to leave JAX's setting alone (float32
+is supported: pass float32 arrays).
+"""
+
+import os as _os
+
+import jax as _jax
+
+if not _os.environ.get("DIFFIMPACT_NO_X64"):
+    _jax.config.update("jax_enable_x64", True)
+
+from . import scenes as scenes
+from ._calibrate import damping_ratio as damping_ratio
+from ._laws._adams import AdamsImpact as AdamsImpact
+from ._laws._base import AbstractBoundLaw as AbstractBoundLaw
+from ._laws._base import AbstractNormalLaw as AbstractNormalLaw
+from ._laws._dissipative import Flores as Flores
+from ._laws._dissipative import HuntCrossley as HuntCrossley
+from ._laws._dissipative import LankaraniNikravesh as LankaraniNikravesh
+from ._laws._hertz import Hertz as Hertz
+from ._laws._jackson_green import JacksonGreen as JacksonGreen
+from ._materials import ContactProperties as ContactProperties
+from ._materials import Material as Material
+from ._materials import contact_properties as contact_properties
+from ._materials import effective_modulus as effective_modulus
+from ._materials import effective_radius as effective_radius
+from ._result import History as History
+from ._result import ImpactResult as ImpactResult
+from ._simulate import simulate as simulate
+from ._solver import SolverSettings as SolverSettings
+
+__version__ = "0.1.0"

@@ -1,0 +1,1 @@
+"""Normal contact force laws (physics.md section 2)."""

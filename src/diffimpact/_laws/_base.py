@@ -1,0 +1,82 @@
+"""What a normal contact law must provide.
+
+A *law* (``Hertz``, ``JacksonGreen``, ...) holds the user's parameters.  Bound
+to one contact pair and one approach speed (``law.bind(contact, v0)``) it
+becomes a *bound law*: all the pair-dependent constants (stiffness, critical
+interference, damping) are computed once, outside the vector field, and the
+bound law answers the questions the solvers ask.
+
+Structure is declared by class-level flags, so a solver decides at trace time
+which states it needs (the scene pays only for what it uses):
+
+- ``hysteretic``: unloading differs from loading, so the maximum compression
+  ``d_m`` must be carried as state and fed to the unloading branch.
+- ``rate_dependent``: the force depends on the interference rate, so the peak
+  force is not ``F(d_m)`` and is tracked as state.
+- ``n_loading_phases``: 1, or 2 when loading switches law at
+  ``switch_deflection`` (JG-4 / JG-5).
+"""
+
+from __future__ import annotations
+
+import abc
+from typing import ClassVar
+
+import equinox as eqx
+import jax.numpy as jnp
+
+from .._materials import ContactProperties
+
+
+class AbstractBoundLaw(eqx.Module):
+    hysteretic: eqx.AbstractClassVar[bool]
+    rate_dependent: eqx.AbstractClassVar[bool]
+    n_loading_phases: ClassVar[int] = 1
+
+    @abc.abstractmethod
+    def scale(self):
+        """``(K, n)`` of a Hertz-like ``K d^n`` that sets the impact's length and
+        time scales (``d_max = ((n+1) m v0^2 / (2 K))^(1/(n+1))``)."""
+
+    @abc.abstractmethod
+    def loading_force(self, d, v, phase: int):
+        """Sharp loading force [N] of loading phase ``phase`` at interference ``d``
+        [m] and rate ``v`` [m/s]."""
+
+    def switch_deflection(self):
+        """Interference [m] at which loading phase 0 hands over to phase 1."""
+        return jnp.inf
+
+    def loading_force_smooth(self, d, v, phase_width):
+        """Loading force with the phase switch blended over ``phase_width``."""
+        return self.loading_force(d, v, 0)
+
+    def residual_deflection(self, d_m):
+        """Permanent deformation ``d_r`` [m] after a maximum compression ``d_m``."""
+        return jnp.zeros_like(d_m)
+
+    def unloading_force(self, d, v, d_m, f_m):
+        """Restitution force [N] after maximum compression ``d_m`` at force ``f_m``."""
+        return self.loading_force(d, v, 0)
+
+    def peak_force(self, d_m):
+        """Largest loading force on ``[0, d_m]`` (rate-independent laws)."""
+        return self.loading_force(d_m, jnp.zeros_like(d_m), self.n_loading_phases - 1)
+
+    # Closed-form pieces used by the ODE-free quadrature path.
+    def elastic_work(self, d):
+        """``int_0^d`` of the phase-0 loading force [J] (closed form)."""
+        k, n = self.scale()
+        return k * d ** (n + 1.0) / (n + 1.0)
+
+    def unloading_exponent(self):
+        """Exponent ``p`` of ``F = F_m ((d - d_r)/(d_m - d_r))^p`` in restitution."""
+        return self.scale()[1]
+
+
+class AbstractNormalLaw(eqx.Module):
+    """A normal contact force law: ``F_n(d, d_dot) >= 0``, zero for ``d <= 0``."""
+
+    @abc.abstractmethod
+    def bind(self, contact: ContactProperties, approach_velocity) -> AbstractBoundLaw:
+        """Compute the pair-dependent constants for one impact."""

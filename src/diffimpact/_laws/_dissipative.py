@@ -1,0 +1,117 @@
+"""Dissipative Hertz laws ``F = K d^n (1 + D d_dot)`` (HC, LN, FL).
+
+The three laws differ only in how they map a target restitution ``e`` to the
+damping factor ``D``; each formula is an approximation derived for a particular
+assumption (small damping, or a particular energy balance), so none reproduces
+``e`` exactly.  With ``calibrated=True`` the damping is instead the root of
+``COR(D v0, n) = e`` computed by the solver (see ``diffimpact.damping_ratio``);
+then all three laws are the same law and give exactly the requested ``e``.
+"""
+
+from __future__ import annotations
+
+import abc
+
+from typing import ClassVar
+
+import equinox as eqx
+import jax.numpy as jnp
+from jaxtyping import Array
+
+from .._checks import as_float, require, require_positive
+from .._materials import ContactProperties
+from .._smooth import safe_pow
+from ._base import AbstractBoundLaw, AbstractNormalLaw
+
+
+class _AbstractDampedHertz(AbstractNormalLaw):
+    cor: eqx.AbstractVar[Array]
+    exponent: eqx.AbstractVar[Array]
+    stiffness: eqx.AbstractVar[Array | None]
+    calibrated: eqx.AbstractVar[bool]
+
+    def __check_init__(self):
+        name = type(self).__name__
+        require(
+            self.cor,
+            jnp.isfinite(self.cor) & (self.cor > 0) & (self.cor <= 1),
+            f"`{name}.cor` (target coefficient of restitution) must lie in (0, 1]",
+        )
+        require_positive(self.exponent, f"{name}.exponent")
+        if self.stiffness is not None:
+            require_positive(self.stiffness, f"{name}.stiffness", "N/m^n")
+
+    @abc.abstractmethod
+    def damping_ratio_formula(self):
+        """Dimensionless damping ``zeta = D v0`` from the law's own formula."""
+
+    def bind(self, contact: ContactProperties, approach_velocity, damping_ratio=None):
+        """``damping_ratio`` (``zeta = D v0``) overrides the law's formula; the
+        solver passes the calibrated value when ``calibrated=True``."""
+        k = contact.hertz_stiffness if self.stiffness is None else self.stiffness
+        zeta = self.damping_ratio_formula() if damping_ratio is None else damping_ratio
+        return BoundDampedHertz(
+            stiffness=k, exponent=self.exponent, damping=zeta / approach_velocity
+        )
+
+
+class HuntCrossley(_AbstractDampedHertz):
+    """Hunt-Crossley: ``F = K d^n (1 + D d_dot)``, ``D = 3 (1 - e) / (2 v0)`` (HC).
+
+    **Arguments:** `cor` (target ``e`` in (0, 1]), `exponent` (``n``, 3/2),
+    `stiffness` (``K`` [N/m^n]; ``None`` = Hertz value), `calibrated` (static:
+    replace the formula by the exact root of ``COR = e``).
+    """
+
+    cor: Array = eqx.field(converter=as_float)
+    exponent: Array = eqx.field(converter=as_float, default=1.5)
+    stiffness: Array | None = None
+    calibrated: bool = eqx.field(static=True, default=False)
+
+    def damping_ratio_formula(self):
+        return 1.5 * (1.0 - self.cor)
+
+
+class LankaraniNikravesh(_AbstractDampedHertz):
+    """Lankarani-Nikravesh: ``D = 3 (1 - e^2) / (4 v0)`` (LN).  Arguments as
+    :class:`HuntCrossley`."""
+
+    cor: Array = eqx.field(converter=as_float)
+    exponent: Array = eqx.field(converter=as_float, default=1.5)
+    stiffness: Array | None = None
+    calibrated: bool = eqx.field(static=True, default=False)
+
+    def damping_ratio_formula(self):
+        return 0.75 * (1.0 - self.cor**2)
+
+
+class Flores(_AbstractDampedHertz):
+    """Flores et al.: ``D = 8 (1 - e) / (5 e v0)`` (FL).  Arguments as
+    :class:`HuntCrossley`."""
+
+    cor: Array = eqx.field(converter=as_float)
+    exponent: Array = eqx.field(converter=as_float, default=1.5)
+    stiffness: Array | None = None
+    calibrated: bool = eqx.field(static=True, default=False)
+
+    def damping_ratio_formula(self):
+        return 1.6 * (1.0 - self.cor) / self.cor
+
+
+class BoundDampedHertz(AbstractBoundLaw):
+    """``F = max(0, K d^n (1 + D d_dot))`` for ``d > 0``."""
+
+    stiffness: Array
+    exponent: Array
+    damping: Array
+    hysteretic: ClassVar[bool] = False
+    rate_dependent: ClassVar[bool] = True
+
+    def scale(self):
+        return self.stiffness, self.exponent
+
+    def loading_force(self, d, v, phase: int):
+        # Clamp at zero: the law must never pull (physics.md section 2).
+        return self.stiffness * safe_pow(d, self.exponent) * jnp.maximum(
+            1.0 + self.damping * v, 0.0
+        )

@@ -1,0 +1,187 @@
+"""Modified Jackson-Green three-phase law (JG-1 .. JG-10).
+
+Source: Wang & Fu, Mech. Sci. 10 (2019), eqs. (25)-(31), following Ghaednia,
+Marghitu and Jackson.  Every number of the fit is a field with the paper's
+value as default, so any of them can be fitted like a material parameter.
+"""
+
+from __future__ import annotations
+
+from typing import ClassVar, Literal
+
+import equinox as eqx
+import jax.numpy as jnp
+from jaxtyping import Array
+
+from .._checks import as_float
+from .._materials import ContactProperties
+from .._smooth import safe_div, safe_pow, safe_sqrt, step
+from ._base import AbstractBoundLaw, AbstractNormalLaw
+
+_f = eqx.field
+
+
+class JacksonGreen(AbstractNormalLaw):
+    """Elastic (Hertz) loading, elasto-plastic loading beyond ``d* = 1.9``, and
+    Hertzian restitution about the permanent deformation ``d_r``.
+
+    **Arguments** (defaults: physics.md, JG-1..JG-10):
+
+    - `c_a`, `c_b`: ``C = c_a exp(c_b nu)`` (JG-1); 1.295, 0.736.
+    - `elastic_limit`: ``d*`` where elasto-plastic loading starts (JG-4/5); 1.9.
+    - `ep_decay`, `ep_decay_exponent`: ``exp(-0.17 d*^(5/12))`` in JG-5.
+    - `hardness_scale`, `hardness_exponent`, `ep_exponent`: ``1/78``, ``5/9``,
+      ``1.1`` in the second term of JG-5.
+    - `hg_a`, `hg_b`: ``H_G/S_y = 2.84 - 0.92 (1 - cos(pi a/R))`` (JG-6).
+    - `b_a`, `b_b`: ``B = 0.14 exp(23 S_y / E*)`` (JG-6).
+    - `dr_a`, `dr_b`, `dr_c`, `dr_exponent`: ``d_r = d_m 0.8 (1 - ((d_m/d_y + 5.5)
+      / 6.5)^-2)`` (JG-8).
+    - `unloading_exponent`: 3/2 in JG-10.
+    - `yield_onset` (static): ``"elastic_limit"`` (default, ``d_y = 1.9 d_c`` as both
+      source papers do) or ``"critical"`` (``d_y = d_c``, Jackson-Green's onset of
+      sub-surface yield); see the JG-8 note in physics.md.
+    - `continuous` (static): scale JG-5 so it meets Hertz at ``d* = 1.9``.  By
+      default (False) the force drops by about 10 % there, as in the source.
+    """
+
+    c_a: Array = _f(converter=as_float, default=1.295)
+    c_b: Array = _f(converter=as_float, default=0.736)
+    elastic_limit: Array = _f(converter=as_float, default=1.9)
+    ep_decay: Array = _f(converter=as_float, default=0.17)
+    ep_decay_exponent: Array = _f(converter=as_float, default=5.0 / 12.0)
+    hardness_scale: Array = _f(converter=as_float, default=78.0)
+    hardness_exponent: Array = _f(converter=as_float, default=5.0 / 9.0)
+    ep_exponent: Array = _f(converter=as_float, default=1.1)
+    hg_a: Array = _f(converter=as_float, default=2.84)
+    hg_b: Array = _f(converter=as_float, default=0.92)
+    b_a: Array = _f(converter=as_float, default=0.14)
+    b_b: Array = _f(converter=as_float, default=23.0)
+    dr_a: Array = _f(converter=as_float, default=0.8)
+    dr_b: Array = _f(converter=as_float, default=5.5)
+    dr_c: Array = _f(converter=as_float, default=6.5)
+    dr_exponent: Array = _f(converter=as_float, default=2.0)
+    unloading_exponent: Array = _f(converter=as_float, default=1.5)
+    yield_onset: Literal["elastic_limit", "critical"] = _f(
+        static=True, default="elastic_limit"
+    )
+    continuous: bool = _f(static=True, default=False)
+
+    def __check_init__(self):
+        if self.yield_onset not in ("elastic_limit", "critical"):
+            raise ValueError(
+                "`JacksonGreen.yield_onset` must be 'elastic_limit' or 'critical', "
+                f"got {self.yield_onset!r}"
+            )
+
+    def bind(self, contact: ContactProperties, approach_velocity):
+        e_star = contact.effective_modulus
+        radius = contact.effective_radius
+        # A yield strength above E* is never reached (d_c would exceed the
+        # radius); clamping keeps S_y = inf ("never yields") finite in every
+        # branch, so gradients stay finite too.
+        s_y = jnp.minimum(contact.yield_strength, e_star)
+        c = self.c_a * jnp.exp(self.c_b * contact.poisson_ratio)  # JG-1
+        d_c = (jnp.pi * c * s_y / (2.0 * e_star)) ** 2 * radius  # JG-2
+        f_c = 4.0 / 3.0 * (radius / e_star) ** 2 * (jnp.pi * c * s_y / 2.0) ** 3
+        b = self.b_a * jnp.exp(self.b_b * s_y / e_star)  # JG-6
+        bound = BoundJacksonGreen(
+            law=self,
+            stiffness=contact.hertz_stiffness,
+            radius=radius,
+            c=c,
+            d_c=d_c,
+            f_c=f_c,
+            b=b,
+            ep_scale=jnp.ones_like(d_c),
+        )
+        if self.continuous:
+            ds = bound.switch_deflection()
+            scale = bound.loading_force(ds, 0.0, 0) / bound.loading_force(ds, 0.0, 1)
+            bound = eqx.tree_at(lambda x: x.ep_scale, bound, scale)
+        return bound
+
+
+class BoundJacksonGreen(AbstractBoundLaw):
+    law: JacksonGreen
+    stiffness: Array  # K = (4/3) E* sqrt(R)  (H-1, JG-4)
+    radius: Array
+    c: Array  # JG-1
+    d_c: Array  # JG-2
+    f_c: Array  # JG-3
+    b: Array  # JG-6
+    ep_scale: Array  # 1, or the continuity factor of the `continuous` variant
+    hysteretic: ClassVar[bool] = True
+    rate_dependent: ClassVar[bool] = False
+    n_loading_phases: ClassVar[int] = 2
+
+    def scale(self):
+        return self.stiffness, jnp.asarray(1.5)
+
+    def switch_deflection(self):
+        return self.law.elastic_limit * self.d_c
+
+    def yield_deflection(self):
+        """``d_y`` of JG-8."""
+        if self.law.yield_onset == "critical":
+            return self.d_c
+        return self.switch_deflection()
+
+    def _hertz(self, d):
+        return self.stiffness * safe_pow(d, 1.5)  # (JG-4) = (H-1)
+
+    def _elasto_plastic(self, d):
+        """JG-5 with JG-6: force [N] at interference ``d`` [m]."""
+        p = self.law
+        ds = d / self.d_c
+        first = jnp.exp(-p.ep_decay * safe_pow(ds, p.ep_decay_exponent)) * safe_pow(
+            ds, 1.5
+        )
+        a = safe_sqrt(self.radius * self.d_c * safe_pow(ds / p.elastic_limit, self.b))
+        hg_over_sy = p.hg_a - p.hg_b * (1.0 - jnp.cos(jnp.pi * a / self.radius))
+        hardening = 1.0 - jnp.exp(-safe_pow(ds, p.hardness_exponent) / p.hardness_scale)
+        second = 4.0 * hg_over_sy / self.c * hardening * safe_pow(ds, p.ep_exponent)
+        return self.ep_scale * self.f_c * (first + second)
+
+    def loading_force(self, d, v, phase: int):
+        return self._hertz(d) if phase == 0 else self._elasto_plastic(d)
+
+    def loading_force_smooth(self, d, v, phase_width):
+        # Blend JG-4 into JG-5 across d* = elastic_limit (physics.md section 4).
+        s = step(d / self.d_c - self.law.elastic_limit, phase_width)
+        return (1.0 - s) * self._hertz(d) + s * self._elasto_plastic(d)
+
+    def residual_deflection(self, d_m):
+        """Permanent deformation ``d_r`` (JG-8); 0 for ``d_m <= d_y``."""
+        p = self.law
+        x = jnp.maximum(d_m / self.yield_deflection(), 1.0)
+        return d_m * p.dr_a * (1.0 - ((x + p.dr_b) / p.dr_c) ** (-p.dr_exponent))
+
+    def unloading_force(self, d, v, d_m, f_m):
+        """JG-10 with the restitution radius of JG-9, written as
+        ``F = F_m ((d - d_r)/(d_m - d_r))^(3/2)`` so that unloading starts at ``F_m``."""
+        d_r = self.residual_deflection(d_m)
+        ratio = safe_div(d - d_r, d_m - d_r, 1e-300)
+        return f_m * safe_pow(ratio, self.law.unloading_exponent)
+
+    def restitution_radius(self, d_m, f_m):
+        """``R_r = (3 F_m / (4 E*))^2 / (d_m - d_r)^3`` (JG-9) [m]."""
+        e_star = 0.75 * self.stiffness / jnp.sqrt(self.radius)
+        d_r = self.residual_deflection(d_m)
+        return (0.75 * f_m / e_star) ** 2 / (d_m - d_r) ** 3
+
+    def peak_force(self, d_m):
+        d_s = self.switch_deflection()
+        plastic = d_m > d_s
+        # The source's force drops ~10 % at the switch, so just past it the
+        # largest force is the Hertz force at d_s, not F(d_m).
+        return jnp.where(
+            plastic,
+            jnp.maximum(self._elasto_plastic(d_m), self._hertz(jnp.minimum(d_s, d_m))),
+            self._hertz(d_m),
+        )
+
+    def elastic_work(self, d):
+        return self.stiffness * safe_pow(d, 2.5) / 2.5
+
+    def unloading_exponent(self):
+        return self.law.unloading_exponent

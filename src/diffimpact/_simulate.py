@@ -1,0 +1,413 @@
+"""One normal impact, from first contact to separation: ``simulate``.
+
+Three methods share one post-processing step (:func:`_assemble`):
+
+- ``"smooth"``: the phases as one smooth-switched vector field (physics.md
+  section 4) integrated by diffrax, ending at separation with a real-valued
+  event located by Newton's method (so the contact time is differentiable).
+- ``"events"``: the exact piecewise solve, with events at ``d* = 1.9``, at zero
+  interference rate and at separation; each phase is its own diffrax solve with
+  a smooth vector field.  The reference for the smooth method.
+- ``"quadrature"``: the ODE-free energy solution (``_quadrature.py``).
+
+Everything runs in the impact's own units (see :class:`SolverSettings`).
+"""
+
+from __future__ import annotations
+
+import diffrax
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import optimistix as optx
+
+from ._checks import require
+from ._laws._base import AbstractBoundLaw, AbstractNormalLaw
+from ._laws._dissipative import _AbstractDampedHertz
+from ._result import History, ImpactResult
+from ._root import newton_root
+from ._smooth import step
+from ._solver import SolverSettings
+from .scenes._base import AbstractScene, NormalProblem
+
+_METHODS = ("smooth", "events", "quadrature")
+
+
+class _Scales(eqx.Module):
+    """Reference length, speed, force and gravity of one impact."""
+
+    length: jax.Array  # d_ref [m]
+    speed: jax.Array  # v0 [m/s]
+    force: jax.Array  # m v0^2 / d_ref [N]
+    gravity: jax.Array  # g d_ref / v0^2 (dimensionless)
+
+    @property
+    def time(self):
+        return self.length / self.speed
+
+
+def _scales(problem: NormalProblem, bound: AbstractBoundLaw) -> _Scales:
+    k, n = bound.scale()
+    m, v0 = problem.mass, problem.velocity
+    d_ref = ((n + 1.0) * m * v0**2 / (2.0 * k)) ** (1.0 / (n + 1.0))
+    return _Scales(
+        length=d_ref,
+        speed=v0,
+        force=m * v0**2 / d_ref,
+        gravity=problem.gravity * d_ref / v0**2,
+    )
+
+
+def _is_conservative(bound) -> bool:
+    return not (bound.hysteretic or bound.rate_dependent)
+
+
+# --------------------------------------------------------------------------
+# Vector fields.  State (scaled): [x, u, (x_m, tau_load), (q)]
+#   x = d / d_ref, u = d_dot / v0, x_m = max compression, tau_load = time spent
+#   loading, q = peak force / force unit.  Which entries exist is decided at
+#   trace time from the law's flags: a conservative law carries only [x, u].
+# --------------------------------------------------------------------------
+
+
+def _smooth_force(bound, d, v, d_m, settings, v0):
+    f_load = bound.loading_force_smooth(d, v, settings.phase_width)
+    if not bound.hysteretic:
+        return f_load
+    # History-dependent restitution (JG-7..JG-10).  Both branches agree at the
+    # turning point (d = d_m, v = 0, the force there is F_m by JG-9), so the
+    # velocity blend costs only second order in its width.
+    f_m = bound.loading_force_smooth(d_m, jnp.zeros_like(d_m), settings.phase_width)
+    f_unload = bound.unloading_force(d, v, d_m, f_m)
+    s = step(v / v0, settings.velocity_width)
+    return s * f_load + (1.0 - s) * f_unload
+
+
+def _peak_rate(bound, force_fn, d, v, acc, sc):
+    """``max(dF/dt, 0)`` in scaled units: integrated, it is the peak force of a
+    single-peaked force history (rate-dependent laws)."""
+    _, dfdt = jax.jvp(force_fn, (d, v), (v, acc))
+    return jnp.maximum(dfdt, 0.0) * sc.time / sc.force
+
+
+def _smooth_field(t, y, args):
+    bound, sc, settings = args
+    x, u = y[0], y[1]
+    d, v = x * sc.length, u * sc.speed
+    d_m = y[2] * sc.length if bound.hysteretic else None
+    force = _smooth_force(bound, d, v, d_m, settings, sc.speed)
+    du = -force / sc.force + sc.gravity
+    parts = [u, du]
+    if not _is_conservative(bound):
+        s = step(u, settings.velocity_width)
+        parts += [s * u, s]
+    if bound.rate_dependent:
+        acc = du * sc.speed**2 / sc.length
+
+        def force_fn(dd, vv):
+            return bound.loading_force_smooth(dd, vv, settings.phase_width)
+
+        parts.append(_peak_rate(bound, force_fn, d, v, acc, sc))
+    return jnp.stack(parts)
+
+
+def _phase_field(t, y, args):
+    """Sharp vector field of one phase (``events`` method)."""
+    bound, sc, phase, d_m, f_m = args
+    x, u = y[0], y[1]
+    d, v = x * sc.length, u * sc.speed
+
+    def force_fn(dd, vv):
+        if phase == "unload":
+            return bound.unloading_force(dd, vv, d_m, f_m)
+        return bound.loading_force(dd, vv, phase)
+
+    force = force_fn(d, v)
+    du = -force / sc.force + sc.gravity
+    parts = [u, du]
+    if bound.rate_dependent:
+        acc = du * sc.speed**2 / sc.length
+        parts.append(_peak_rate(bound, force_fn, d, v, acc, sc))
+    return jnp.stack(parts)
+
+
+def _solve(field, y0, args, settings, conds, directions, dense=False):
+    """One diffrax solve that ends at the first of ``conds`` (real-valued,
+    located by Newton so the end time is differentiable)."""
+    event = diffrax.Event(
+        cond_fn=conds,
+        root_finder=optx.Newton(rtol=settings.event_tol, atol=settings.event_tol),
+        direction=directions,
+    )
+    return diffrax.diffeqsolve(
+        diffrax.ODETerm(field),
+        settings.solver,
+        t0=0.0,
+        t1=settings.max_time,
+        dt0=None,
+        y0=y0,
+        args=args,
+        stepsize_controller=diffrax.PIDController(rtol=settings.rtol, atol=settings.atol),
+        saveat=diffrax.SaveAt(t1=True, dense=dense),
+        event=event,
+        max_steps=settings.max_steps,
+    )
+
+
+def _check_event(sol, what: str, settings: SolverSettings):
+    happened = jnp.any(jnp.stack([jnp.asarray(m) for m in jax.tree.leaves(sol.event_mask)]))
+    t = require(
+        sol.ts[-1],
+        happened,
+        f"diffimpact: {what} did not happen within `SolverSettings.max_time` = "
+        f"{settings.max_time} impact time units (d_ref / v0); the bodies may "
+        "never separate (e.g. gravity holds them together). Raise `max_time` if "
+        "the impact is just slow.",
+    )
+    return t
+
+
+def _y0(bound, dtype, smooth: bool):
+    n = 2
+    if smooth and not _is_conservative(bound):
+        n += 2
+    if bound.rate_dependent:
+        n += 1
+    return jnp.zeros(n, dtype).at[1].set(1.0)
+
+
+def _energy_max_deflection(problem, bound):
+    """``d_m`` of a conservative law from ``W(d_m) - m g d_m = m v0^2 / 2``."""
+    k, n = bound.scale()
+    m, g, v0 = problem.mass, problem.gravity, problem.velocity
+
+    def h(d, args):
+        k, n, m, g, v0 = args
+        return k * d ** (n + 1.0) / (n + 1.0) - m * g * d - 0.5 * m * v0**2
+
+    d_free = ((n + 1.0) * 0.5 * m * v0**2 / k) ** (1.0 / (n + 1.0))
+    d_static = (2.0 * jnp.abs(m * g) / k) ** (1.0 / n)
+    # Start right of the root (h convex): Newton then converges monotonically.
+    return newton_root(h, d_free + d_static, (k, n, m, g, v0))
+
+
+def _solve_smooth(problem, bound, settings, n_history):
+    sc = _scales(problem, bound)
+    dtype = jnp.result_type(sc.length)
+    y0 = _y0(bound, dtype, smooth=True)
+
+    def separation(t, y, args, **kw):
+        x_r = bound.residual_deflection(y[2] * sc.length) / sc.length if bound.hysteretic else 0.0
+        return y[0] - x_r
+
+    sol = _solve(
+        _smooth_field,
+        y0,
+        (bound, sc, settings),
+        settings,
+        separation,
+        False,
+        dense=n_history > 0,
+    )
+    tau_end = _check_event(sol, "separation", settings)
+    y = sol.ys[-1]
+    out = dict(
+        contact_time=tau_end * sc.time,
+        rebound_velocity=-y[1] * sc.speed,
+        num_steps=sol.stats["num_steps"],
+    )
+    if _is_conservative(bound):
+        # Time reversal: restitution retraces compression (elastic law).
+        out["max_deflection"] = _energy_max_deflection(problem, bound)
+        out["compression_time"] = 0.5 * out["contact_time"]
+    else:
+        out["max_deflection"] = y[2] * sc.length
+        out["compression_time"] = y[3] * sc.time
+    if bound.rate_dependent:
+        out["max_force"] = y[-1] * sc.force
+    if n_history > 0:
+        taus = jnp.linspace(0.0, tau_end, n_history)
+        ys = jax.vmap(sol.evaluate)(taus)
+        d, v = ys[:, 0] * sc.length, ys[:, 1] * sc.speed
+        d_m = ys[:, 2] * sc.length if bound.hysteretic else jnp.zeros_like(d)
+        force = jax.vmap(lambda a, b, c: _smooth_force(bound, a, b, c, settings, sc.speed))(
+            d, v, d_m
+        )
+        out["history"] = History(time=taus * sc.time, deflection=d, velocity=v, force=force)
+    return out
+
+
+def _solve_events(problem, bound, settings):
+    sc = _scales(problem, bound)
+    dtype = jnp.result_type(sc.length)
+    y0 = _y0(bound, dtype, smooth=False)
+    x_switch = bound.switch_deflection() / sc.length
+    two_phase = bound.n_loading_phases == 2
+
+    def stop(t, y, args, **kw):  # interference rate falls to zero
+        return y[1]
+
+    def switch(t, y, args, **kw):  # d* reaches the elastic limit
+        return y[0] - x_switch
+
+    none = jnp.zeros((), dtype)
+    conds, dirs = (stop, switch) if two_phase else (stop,), (False, True) if two_phase else (False,)
+    sol_a = _solve(_phase_field, y0, (bound, sc, 0, none, none), settings, conds, dirs)
+    t_a = _check_event(sol_a, "maximum compression", settings)
+    y_a = sol_a.ys[-1]
+    steps = sol_a.stats["num_steps"]
+    if two_phase:
+        switched = sol_a.event_mask[1]
+        # Elasto-plastic loading from the switch.  When the first phase ended
+        # at maximum compression instead, this solve runs from a benign dummy
+        # state (just past the switch, slowly approaching) and is discarded:
+        # it must stay well posed so that neither values nor gradients of the
+        # unused branch are NaN.
+        dummy = y0.at[0].set(x_switch * 1.01).at[1].set(0.1)
+        y0_b = jnp.where(switched, y_a, dummy)
+        sol_b = _solve(_phase_field, y0_b, (bound, sc, 1, none, none), settings, stop, False)
+        t_b = _check_event(sol_b, "maximum compression", settings)
+        y_load = jnp.where(switched, sol_b.ys[-1], y_a)
+        t_load = jnp.where(switched, t_a + t_b, t_a)
+        steps = steps + sol_b.stats["num_steps"]
+    else:
+        y_load, t_load = y_a, t_a
+    d_m = y_load[0] * sc.length
+    f_m = bound.loading_force(d_m, jnp.zeros_like(d_m), 1 if two_phase else 0)
+    if two_phase:
+        f_m = jnp.where(switched, f_m, bound.loading_force(d_m, 0.0 * d_m, 0))
+    x_r = bound.residual_deflection(d_m) / sc.length
+
+    def separation(t, y, args, **kw):
+        return y[0] - x_r
+
+    y0_c = y_load.at[1].set(0.0)
+    sol_c = _solve(_phase_field, y0_c, (bound, sc, "unload", d_m, f_m), settings, separation, False)
+    t_c = _check_event(sol_c, "separation", settings)
+    y_c = sol_c.ys[-1]
+    out = dict(
+        contact_time=(t_load + t_c) * sc.time,
+        compression_time=t_load * sc.time,
+        rebound_velocity=-y_c[1] * sc.speed,
+        max_deflection=d_m,
+        num_steps=steps + sol_c.stats["num_steps"],
+    )
+    if bound.rate_dependent:
+        out["max_force"] = y_c[-1] * sc.force
+    return out
+
+
+def _assemble(problem: NormalProblem, bound: AbstractBoundLaw, raw: dict) -> dict:
+    """Derived outputs (physics.md section 5), from momentum and energy balance.
+
+    Compression impulse ``m v0 + m g t_load`` and restitution impulse
+    ``m v_out + m g t_rest`` follow from the momentum theorem; the works
+    ``m v0^2/2 + m g d_m`` and ``m v_out^2/2 + m g (d_m - d_r)`` from the work-energy
+    theorem, so they hold for whatever force the solve integrated.
+    """
+    m, g, v0 = problem.mass, problem.gravity, problem.velocity
+    d_m = raw["max_deflection"]
+    d_r = bound.residual_deflection(d_m)
+    v_out = raw["rebound_velocity"]
+    t_c, t_load = raw["contact_time"], raw["compression_time"]
+    t_rest = t_c - t_load
+    i_comp = m * v0 + m * g * t_load
+    i_rest = m * v_out + m * g * t_rest
+    w_comp = 0.5 * m * v0**2 + m * g * d_m
+    w_rest = 0.5 * m * v_out**2 + m * g * (d_m - d_r)
+    max_force = raw.get("max_force")
+    if max_force is None:
+        max_force = bound.peak_force(d_m)
+    return dict(
+        contact_time=t_c,
+        compression_time=t_load,
+        restitution_time=t_rest,
+        rebound_velocity=v_out,
+        cor_newton=v_out / v0,
+        cor_poisson=i_rest / i_comp,
+        cor_energetic=jnp.sqrt(w_rest / w_comp),
+        max_force=max_force,
+        max_deflection=d_m,
+        permanent_deformation=d_r,
+        impulse_compression=i_comp,
+        impulse_restitution=i_rest,
+        work_compression=w_comp,
+        work_restitution=w_rest,
+        num_steps=raw["num_steps"],
+        history=raw.get("history"),
+    )
+
+
+def _bind(law: AbstractNormalLaw, problem: NormalProblem) -> AbstractBoundLaw:
+    if isinstance(law, _AbstractDampedHertz) and law.calibrated:
+        from ._calibrate import damping_ratio
+
+        return law.bind(problem.contact, problem.velocity, damping_ratio(law.cor, law.exponent))
+    return law.bind(problem.contact, problem.velocity)
+
+
+def _validated(problem: NormalProblem) -> NormalProblem:
+    """Runtime guards for traced inputs (concrete ones were checked eagerly)."""
+    v = require(
+        problem.velocity,
+        jnp.isfinite(problem.velocity) & (problem.velocity > 0),
+        "`velocity` (normal approach speed at first contact) must be finite and > 0",
+    )
+    m = require(
+        problem.mass,
+        jnp.isfinite(problem.mass) & (problem.mass > 0),
+        "`mass` must be finite and > 0",
+    )
+    return eqx.tree_at(lambda p: (p.velocity, p.mass), problem, (v, m))
+
+
+@eqx.filter_jit
+def _simulate(scene, law, method, settings, n_history):
+    problem = _validated(scene.normal_problem())
+    bound = _bind(law, problem)
+    if method == "smooth":
+        raw = _solve_smooth(problem, bound, settings, n_history)
+    elif method == "events":
+        raw = _solve_events(problem, bound, settings)
+    else:
+        from ._quadrature import solve_quadrature
+
+        raw = solve_quadrature(problem, bound, settings)
+    out = _assemble(problem, bound, raw)
+    return ImpactResult(**out, extras=scene.extras(out["rebound_velocity"]))
+
+
+def simulate(
+    scene: AbstractScene,
+    law: AbstractNormalLaw,
+    method: str = "smooth",
+    *,
+    settings: SolverSettings = SolverSettings(),
+    n_history: int = 0,
+) -> ImpactResult:
+    """Simulate one impact of ``scene`` under the normal contact ``law``.
+
+    **Arguments:**
+
+    - `scene`: e.g. :class:`diffimpact.scenes.NormalImpact` or
+      :class:`diffimpact.scenes.Collinear`.
+    - `law`: a normal force law (:class:`Hertz`, :class:`JacksonGreen`, ...).
+    - `method`: ``"smooth"`` (default), ``"events"`` or ``"quadrature"``.
+    - `settings`: a :class:`SolverSettings`.
+    - `n_history`: number of equally spaced samples of deflection, velocity and
+      force to return in ``result.history`` (``"smooth"`` only; 0 = none).
+
+    **Returns:** an :class:`ImpactResult`.
+
+    ``jax.jit``, ``jax.vmap`` and ``jax.grad`` compose with this function: every
+    number in ``scene`` and ``law`` is a traced field.
+    """
+    if method not in _METHODS:
+        raise ValueError(f"`method` must be one of {_METHODS}, got {method!r}")
+    if not isinstance(scene, AbstractScene):
+        raise TypeError(f"`scene` must be a diffimpact scene, got {type(scene).__name__}")
+    if not isinstance(law, AbstractNormalLaw):
+        raise TypeError(f"`law` must be a diffimpact contact law, got {type(law).__name__}")
+    if n_history < 0 or (n_history > 0 and method != "smooth"):
+        raise ValueError("`n_history` must be >= 0, and histories come from method='smooth'")
+    return _simulate(scene, law, method, settings, n_history)

@@ -1,0 +1,43 @@
+"""Solver settings shared by the smooth, events and quadrature methods."""
+
+from __future__ import annotations
+
+import diffrax
+import equinox as eqx
+
+
+class SolverSettings(eqx.Module):
+    """Numerical settings of :func:`diffimpact.simulate`.
+
+    The solve runs in the impact's own units: lengths in ``d_ref``, the Hertz-like
+    maximum interference ``((n+1) m v0^2 / (2 K))^(1/(n+1))``, times in
+    ``d_ref / v0``, so the state is O(1) and one set of tolerances fits a 1 um
+    micro-sphere and a 1 kg hammer alike (and a vmapped batch takes similar
+    step counts).
+
+    **Arguments:**
+
+    - `solver`: a diffrax solver (default ``Dopri8``: at the tolerances where the
+      smooth switches are resolved it needs far fewer steps than ``Tsit5``; see
+      benchmarks/RESULTS.md).
+    - `rtol`, `atol`: step-size controller tolerances on the scaled state.
+    - `velocity_width`: width of the smooth loading/unloading indicator, as a
+      fraction of the approach speed ``v0``.
+    - `phase_width`: width of the smooth elastic/elasto-plastic indicator, in
+      units of the dimensionless interference ``d* = d / d_c``.
+    - `max_steps`: step budget of one solve.
+    - `max_time`: time budget of one solve, in units of ``d_ref / v0`` (a Hertz
+      impact lasts 2.94 of them).
+    - `event_tol`: tolerance of the Newton solve that locates separation.
+    - `quadrature_order`: Gauss-Legendre nodes of the quadrature method.
+    """
+
+    solver: diffrax.AbstractSolver = eqx.field(static=True, default=diffrax.Dopri8())
+    rtol: float = eqx.field(static=True, default=1e-10)
+    atol: float = eqx.field(static=True, default=1e-12)
+    velocity_width: float = eqx.field(static=True, default=1e-4)
+    phase_width: float = eqx.field(static=True, default=1e-3)
+    max_steps: int = eqx.field(static=True, default=4096)
+    max_time: float = eqx.field(static=True, default=100.0)
+    event_tol: float = eqx.field(static=True, default=1e-13)
+    quadrature_order: int = eqx.field(static=True, default=32)

@@ -1,0 +1,6 @@
+"""Impact scenes: each holds its bodies, geometry and state at first contact."""
+
+from ._base import AbstractScene as AbstractScene
+from ._base import NormalProblem as NormalProblem
+from ._normal import Collinear as Collinear
+from ._normal import NormalImpact as NormalImpact
