@@ -1,0 +1,43 @@
+"""Shared fixtures.  Importing diffimpact enables float64 (jax_enable_x64)."""
+
+import math
+
+import jax
+import numpy as np
+import pytest
+
+import diffimpact as di
+
+# Tight event solve: the exact phase-switching reference of the smooth method.
+TIGHT = di.SolverSettings(rtol=1e-13, atol=1e-15)
+
+# Steel sphere, R = 5 mm (the issue's reference impact).
+RADIUS = 5e-3
+MASS = 4.0 / 3.0 * math.pi * RADIUS**3 * 7850.0
+
+
+def steel(yield_strength=300e6, youngs_modulus=210e9, poisson_ratio=0.3):
+    return di.Material(youngs_modulus, poisson_ratio, yield_strength, 7850.0)
+
+
+def sphere(velocity=1.0, yield_strength=300e6, **kw):
+    """Steel sphere on a steel flat of the same material (JG tests)."""
+    mat = steel(yield_strength)
+    return di.scenes.NormalImpact(
+        mass=kw.get("mass", MASS),
+        radius=kw.get("radius", RADIUS),
+        body=mat,
+        flat=mat,
+        velocity=velocity,
+        gravity=kw.get("gravity", 0.0),
+    )
+
+
+def rel(a, b):
+    a, b = np.asarray(a), np.asarray(b)
+    return np.abs(a - b) / np.abs(b)
+
+
+@pytest.fixture(autouse=True, scope="session")
+def _x64():
+    assert jax.config.jax_enable_x64, "diffimpact must enable float64 on import"

@@ -1,0 +1,85 @@
+"""Hertz impact against the closed forms of physics.md (H-1)."""
+
+import math
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+from conftest import MASS, RADIUS, rel, steel
+
+import diffimpact as di
+
+# 2 int_0^1 dx / sqrt(1 - x^(5/2)) = (4/5) B(2/5, 1/2), computed, not typed.
+BETA = math.gamma(0.4) * math.gamma(0.5) / math.gamma(0.9)
+TC_CONST = 0.8 * BETA
+
+
+def closed_form(scene):
+    c = di.contact_properties(scene.body, scene.flat, scene.radius)
+    k, m, v0 = float(c.hertz_stiffness), float(scene.mass), float(scene.velocity)
+    d_max = (5.0 * m * v0**2 / (4.0 * k)) ** 0.4
+    return d_max, TC_CONST * d_max / v0, k, c
+
+
+def test_tc_constant_matches_physics_md():
+    assert TC_CONST == pytest.approx(2.9432752, abs=1e-7)
+    assert TC_CONST * (5.0 / 4.0) ** 0.4 == pytest.approx(3.2180655, abs=1e-7)
+
+
+@pytest.mark.parametrize("method", ["smooth", "events", "quadrature"])
+def test_closed_forms_over_speeds(method):
+    """d_max and t_c to 1e-7 relative and e = 1 within 1e-8, at default settings,
+    over four decades of speed in one vmapped call."""
+    mat = steel(jnp.inf)
+    speeds = jnp.array([1e-3, 0.01, 0.3, 1.0, 10.0])
+
+    def run(v):
+        sc = di.scenes.NormalImpact(MASS, RADIUS, mat, mat, v)
+        return di.simulate(sc, di.Hertz(), method)
+
+    r = jax.vmap(run)(speeds)
+    for i, v in enumerate(speeds):
+        d_max, t_c, k, c = closed_form(di.scenes.NormalImpact(MASS, RADIUS, mat, mat, v))
+        assert rel(r.max_deflection[i], d_max) < 1e-7
+        assert rel(r.contact_time[i], t_c) < 1e-7
+        assert rel(r.compression_time[i], t_c / 2) < 1e-7
+        # The DEM form's constant 2.8683 has 5 digits: agree to its precision.
+        dem = 2.8683 * (MASS**2 / (RADIUS * float(c.effective_modulus) ** 2 * float(v))) ** 0.2
+        assert rel(r.contact_time[i], dem) < 2e-5
+    for f in ("cor_newton", "cor_poisson", "cor_energetic"):
+        np.testing.assert_allclose(getattr(r, f), 1.0, rtol=0, atol=1e-8)
+    np.testing.assert_array_equal(r.permanent_deformation, 0.0)
+    # Peak force is K d_max^1.5.
+    np.testing.assert_allclose(r.max_force, k * np.asarray(r.max_deflection) ** 1.5, rtol=1e-12)
+
+
+def test_general_exponent_closed_form():
+    """F = K d^n: d_max = ((n+1) m v0^2 / (2K))^(1/(n+1)), elastic (e = 1)."""
+    mat = steel(jnp.inf)
+    sc = di.scenes.NormalImpact(MASS, RADIUS, mat, mat, 2.0)
+    law = di.Hertz(exponent=2.0, stiffness=1e12)
+    d_max = (3.0 * MASS * 4.0 / (2.0 * 1e12)) ** (1.0 / 3.0)
+    for method in ("smooth", "quadrature"):
+        r = di.simulate(sc, law, method)
+        assert rel(r.max_deflection, d_max) < 1e-7
+        assert abs(float(r.cor_newton) - 1.0) < 1e-8
+
+
+def test_gravity_all_methods_agree():
+    """A slow drop (1 mm/s) where gravity is ~40 % of the peak contact force: the
+    impact is longer than without gravity, still elastic, and all methods agree."""
+    mat = steel(jnp.inf)
+    sc = di.scenes.NormalImpact(MASS, RADIUS, mat, mat, 1e-3, gravity=9.81)
+    r_q = di.simulate(sc, di.Hertz(), "quadrature")
+    r_0 = di.simulate(eqx_replace_gravity(sc, 0.0), di.Hertz(), "quadrature")
+    assert float(r_q.contact_time) > float(r_0.contact_time) * 1.05
+    assert abs(float(r_q.cor_newton) - 1.0) < 1e-10
+    for method in ("smooth", "events"):
+        r = di.simulate(sc, di.Hertz(), method)
+        for f in ("contact_time", "max_deflection", "rebound_velocity"):
+            assert rel(getattr(r, f), getattr(r_q, f)) < 1e-7, (method, f)
+
+
+def eqx_replace_gravity(sc, g):
+    return di.scenes.NormalImpact(sc.mass, sc.radius, sc.body, sc.flat, sc.velocity, g)

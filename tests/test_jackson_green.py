@@ -1,0 +1,157 @@
+"""Jackson-Green three-phase impact: smooth and quadrature against the exact
+event-switched solve (JG-1..JG-10)."""
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+from conftest import MASS, RADIUS, TIGHT, rel, sphere, steel
+
+import diffimpact as di
+
+SPEEDS = [0.01, 0.1, 1.0, 10.0]
+YIELDS = [50e6, 200e6, 1e9, 2e9]
+FIELDS = ("contact_time", "cor_newton", "max_deflection", "permanent_deformation")
+
+
+def _grid(method, settings=di.SolverSettings(), law=di.JacksonGreen()):
+    v, sy = np.meshgrid(SPEEDS, YIELDS)
+
+    def run(v, sy):
+        return di.simulate(sphere(v, sy), law, method, settings=settings)
+
+    return jax.vmap(run)(jnp.asarray(v.ravel()), jnp.asarray(sy.ravel()))
+
+
+@pytest.fixture(scope="module")
+def reference():
+    return _grid("events", TIGHT)
+
+
+def _d_star(res, law=di.JacksonGreen()):
+    v, sy = np.meshgrid(SPEEDS, YIELDS)
+    d_c = [
+        float(law.bind(sphere(a, b).normal_problem().contact, a).d_c)
+        for a, b in zip(v.ravel(), sy.ravel())
+    ]
+    return np.asarray(res.max_deflection) / np.asarray(d_c)
+
+
+def test_grid_spans_all_regimes(reference):
+    """The grid holds elastic impacts (d* < 1.9) and elasto-plastic ones up to
+    d* ~ 3e4, and no impact ends within 0.05 of the switch d* = 1.9, where the
+    source's law itself is discontinuous (see test_switch_band)."""
+    d_star = _d_star(reference)
+    assert d_star.min() < 0.1 and d_star.max() > 1e4
+    assert np.all(np.abs(d_star - 1.9) > 0.05)
+
+
+@pytest.mark.parametrize("method", ["smooth", "quadrature"])
+def test_agrees_with_events(method, reference):
+    res = _grid(method)
+    for f in FIELDS:
+        a, b = np.asarray(getattr(res, f)), np.asarray(getattr(reference, f))
+        err = np.where(b != 0, np.abs(a - b) / np.where(b != 0, np.abs(b), 1), np.abs(a))
+        assert err.max() < 1e-5, (f, err.max())
+    assert rel(res.compression_time, reference.compression_time).max() < 1e-5
+
+
+def test_below_yield_is_elastic(reference):
+    d_star = _d_star(reference)
+    elastic = d_star < 1.9
+    assert elastic.sum() >= 4
+    assert np.all(np.asarray(reference.permanent_deformation)[elastic] == 0.0)
+    np.testing.assert_allclose(np.asarray(reference.cor_newton)[elastic], 1.0, atol=1e-8)
+    plastic = ~elastic
+    assert np.all(np.asarray(reference.cor_newton)[plastic] < 0.99)
+    assert np.all(np.asarray(reference.permanent_deformation)[plastic] > 0.0)
+
+
+def test_force_drop_at_switch():
+    """physics.md: JG-5 at d* = 1.9 is about 0.90 of Hertz for nu = 0.3."""
+    sc = sphere(1.0, 300e6)
+    b = di.JacksonGreen().bind(sc.normal_problem().contact, 1.0)
+    d = b.switch_deflection()
+    ratio = float(b.loading_force(d, 0.0, 1) / b.loading_force(d, 0.0, 0))
+    assert ratio == pytest.approx(0.90, abs=0.005)
+    bc = di.JacksonGreen(continuous=True).bind(sc.normal_problem().contact, 1.0)
+    assert float(bc.loading_force(d, 0.0, 1) / bc.loading_force(d, 0.0, 0)) == pytest.approx(
+        1.0, rel=1e-13
+    )
+
+
+def test_restitution_starts_at_peak_force():
+    """JG-9 chooses R_r so the unloading branch starts at F_m."""
+    sc = sphere(1.0, 200e6)
+    b = di.JacksonGreen().bind(sc.normal_problem().contact, 1.0)
+    d_m = 50 * b.d_c
+    f_m = b.loading_force(d_m, 0.0, 1)
+    assert float(b.unloading_force(d_m, 0.0, d_m, f_m)) == pytest.approx(float(f_m), rel=1e-14)
+    r_r = b.restitution_radius(d_m, f_m)
+    d_r = b.residual_deflection(d_m)
+    e_star = float(sc.normal_problem().contact.effective_modulus)
+    k_r = 4.0 / 3.0 * e_star * float(jnp.sqrt(r_r))
+    assert k_r * float(d_m - d_r) ** 1.5 == pytest.approx(float(f_m), rel=1e-12)
+    assert 0.0 < float(d_r) < 0.8 * float(d_m)
+
+
+def test_switch_band():
+    """Within a few blend widths of d* = 1.9 the source's law is discontinuous
+    (its force drops 10 %, so the exact COR jumps as the speed crosses the
+    onset of yield) and the smooth method returns a smoothed value.  With the
+    `continuous` variant the exact model is continuous and the smooth method
+    agrees with it to 1e-5 right at the switch."""
+    law = di.JacksonGreen(continuous=True)
+    # Speeds that put d_m at d* = 1.8 .. 2.0 for S_y = 1 GPa.
+    speeds = jnp.linspace(0.28, 0.34, 9)
+
+    def run(v, method, st):
+        return di.simulate(sphere(v, 1e9), law, method, settings=st)
+
+    ref = jax.vmap(lambda v: run(v, "events", TIGHT))(speeds)
+    smo = jax.vmap(lambda v: run(v, "smooth", di.SolverSettings()))(speeds)
+    d_star = np.asarray(ref.max_deflection) / float(
+        law.bind(sphere(1.0, 1e9).normal_problem().contact, 1.0).d_c
+    )
+    assert d_star.min() < 1.9 < d_star.max()
+    for f in FIELDS:
+        a, b = np.asarray(getattr(smo, f)), np.asarray(getattr(ref, f))
+        scale = np.maximum(np.abs(b), 1e-3 * np.abs(np.asarray(ref.max_deflection)))
+        assert (np.abs(a - b) / scale).max() < 1e-5, f
+
+
+def test_peak_force_just_past_switch():
+    """Just past the switch the largest force is Hertz at d_s, not F(d_m)."""
+    sc = sphere(1.0, 300e6)
+    b = di.JacksonGreen().bind(sc.normal_problem().contact, 1.0)
+    d_s = b.switch_deflection()
+    assert float(b.peak_force(1.01 * d_s)) == pytest.approx(float(b.loading_force(d_s, 0.0, 0)))
+    assert float(b.peak_force(100 * d_s)) == pytest.approx(
+        float(b.loading_force(100 * d_s, 0.0, 1))
+    )
+
+
+def test_yield_onset_critical_variant():
+    """d_y = d_c (yield_onset='critical'): an impact with 1 < d* < 1.9 loads
+    elastically but leaves a permanent dent; quadrature and events agree."""
+    law = di.JacksonGreen(yield_onset="critical")
+    sc = sphere(0.25, 1e9)
+    ref = di.simulate(sc, law, "events", settings=TIGHT)
+    d_c = float(law.bind(sc.normal_problem().contact, 0.25).d_c)
+    assert 1.0 < float(ref.max_deflection) / d_c < 1.9
+    assert float(ref.permanent_deformation) > 0
+    q = di.simulate(sc, law, "quadrature")
+    for f in FIELDS:
+        assert rel(getattr(q, f), getattr(ref, f)) < 1e-7
+    default = di.simulate(sc, di.JacksonGreen(), "quadrature")
+    assert float(default.permanent_deformation) == 0.0
+
+
+def test_never_yields():
+    """S_y = inf reduces JG to Hertz (finite everywhere, e = 1)."""
+    mat = steel(jnp.inf)
+    sc = di.scenes.NormalImpact(MASS, RADIUS, mat, mat, 5.0)
+    r = di.simulate(sc, di.JacksonGreen(), "smooth")
+    h = di.simulate(sc, di.Hertz(), "quadrature")
+    assert rel(r.contact_time, h.contact_time) < 1e-7
+    assert abs(float(r.cor_newton) - 1) < 1e-8
