@@ -116,8 +116,10 @@ def test_switch_band():
     assert d_star.min() < 1.9 < d_star.max()
     for f in FIELDS:
         a, b = np.asarray(getattr(smo, f)), np.asarray(getattr(ref, f))
-        scale = np.maximum(np.abs(b), 1e-3 * np.abs(np.asarray(ref.max_deflection)))
-        assert (np.abs(a - b) / scale).max() < 1e-5, f
+        # d_r grows from 0 at the onset of yield: measure it on its natural
+        # scale, d_m, rather than relative to itself.
+        scale = np.asarray(ref.max_deflection) if f == "permanent_deformation" else b
+        assert (np.abs(a - b) / np.abs(scale)).max() < 1e-5, f
 
 
 def test_peak_force_just_past_switch():

@@ -3,7 +3,9 @@
 Without gravity, ``F = K d^n (1 + D d_dot)`` in the impact's own units
 (``x = d / d_ref``, ``u = d_dot / v0``) reads ``u' = -((n+1)/2) x^n (1 + zeta u)``
 with ``zeta = D v0``: the restitution coefficient depends on ``zeta`` and ``n``
-only, not on mass, stiffness or speed.  ``damping_ratio(e, n)`` solves
+only, not on mass, stiffness or speed.  (In fact on ``zeta`` alone: with
+``z = x^(n+1)`` the equation becomes ``du/dz = -(1 + zeta u) / (2 u)``, free of
+``n``; the tests check that ``d zeta / d n`` vanishes.)  ``damping_ratio(e, n)`` solves
 ``COR(zeta, n) = e`` with Newton's method on a tightly-toleranced smooth solve,
 and differentiates the root implicitly.  (The HC, LN and Flores formulas are
 approximations of this root; with calibration the three laws coincide.)

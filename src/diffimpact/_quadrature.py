@@ -80,7 +80,11 @@ def solve_quadrature(problem, bound, settings):
 
     d_free = ((n + 1.0) * energy / k) ** (1.0 / (n + 1.0))
     d_static = (2.0 * jnp.abs(m * g) / k) ** (1.0 / n)
-    d_el = newton_root(h_el, d_free + d_static, (k, n, m, g, energy))
+    def dh_el(d, args):
+        k, n, m, g, _ = args
+        return k * d**n - m * g
+
+    d_el = newton_root(h_el, d_free + d_static, (k, n, m, g, energy), fprime=dh_el)
 
     if two_phase:
         d_s = bound.switch_deflection()
@@ -101,7 +105,11 @@ def solve_quadrature(problem, bound, settings):
 
         # h_pl is convex: from d_s (left of the root) Newton lands right of the
         # root and then converges monotonically.
-        d_pl = newton_root(h_pl, d_s, (bound, d_s, u_s, m, g, e_pl))
+        def dh_pl(d, args):
+            bound_, _, _, m, g, _ = args
+            return bound_.loading_force(d, 0.0, 1) - m * g
+
+        d_pl = newton_root(h_pl, d_s, (bound, d_s, u_s, m, g, e_pl), fprime=dh_pl)
         d_m = jnp.where(plastic, d_pl, d_el)
     else:
         plastic = False

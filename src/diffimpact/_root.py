@@ -16,27 +16,36 @@ import jax.numpy as jnp
 from jax import lax
 
 
-def newton_root(fn, x0, args, *, rtol=1e-14, max_iter=60, lower=-jnp.inf):
+def newton_root(fn, x0, args, *, fprime=None, rtol=1e-10, max_iter=40, lower=-jnp.inf):
     """Root ``x`` of ``fn(x, args) = 0`` by Newton's method from ``x0``.
 
     ``fn`` must be scalar, smooth and monotone near the root, and ``x0`` on the
     side from which Newton converges (for a convex increasing ``fn``: anywhere;
     iterates end on the right of the root and converge monotonically).  Iterates
-    are clamped at ``lower``.  Derivatives of ``fn`` are taken in reverse mode
+    are clamped at ``lower``.  ``fprime(x, args)``, if given, is the derivative
+    (else reverse-mode AD).  Derivatives of ``fn`` are taken in reverse mode
     only, so ``fn`` may contain a diffrax solve with the default adjoint.
+
+    Iteration stops once a step is below ``rtol`` relative: convergence is
+    quadratic, so the iterate is then accurate to about ``rtol**2``.  (A much
+    tighter ``rtol`` can stall at rounding level, and under ``vmap`` one stalled
+    element keeps the whole batch iterating.)
     """
-    return _newton(fn, rtol, max_iter, lower, x0, args)
+    return _newton(fn, fprime, rtol, max_iter, lower, x0, args)
 
 
-@partial(jax.custom_jvp, nondiff_argnums=(0, 1, 2, 3))
-def _newton(fn, rtol, max_iter, lower, x0, args):
+@partial(jax.custom_jvp, nondiff_argnums=(0, 1, 2, 3, 4))
+def _newton(fn, fprime, rtol, max_iter, lower, x0, args):
     def cond(carry):
         i, x, dx = carry
         return (i < max_iter) & (jnp.abs(dx) > rtol * jnp.abs(x))
 
     def body(carry):
         i, x, _ = carry
-        f, df = jax.value_and_grad(fn)(x, args)
+        if fprime is None:
+            f, df = jax.value_and_grad(fn)(x, args)
+        else:
+            f, df = fn(x, args), fprime(x, args)
         x_new = jnp.maximum(x - f / df, lower)
         return i + 1, x_new, x_new - x
 
@@ -46,10 +55,10 @@ def _newton(fn, rtol, max_iter, lower, x0, args):
 
 
 @_newton.defjvp
-def _newton_jvp(fn, rtol, max_iter, lower, primals, tangents):
+def _newton_jvp(fn, fprime, rtol, max_iter, lower, primals, tangents):
     x0, args = primals
     _, args_dot = tangents
-    x = _newton(fn, rtol, max_iter, lower, x0, args)
+    x = _newton(fn, fprime, rtol, max_iter, lower, x0, args)
     dfdx, dfda = jax.grad(fn, argnums=(0, 1))(x, args)
     # Contract the reverse-mode partials with the tangents: linear in the
     # tangents, so JAX can transpose this rule for reverse mode too.

@@ -83,11 +83,20 @@ def _smooth_force(bound, d, v, d_m, settings, v0):
     return s * f_load + (1.0 - s) * f_unload
 
 
-def _peak_rate(bound, force_fn, d, v, acc, sc):
-    """``max(dF/dt, 0)`` in scaled units: integrated, it is the peak force of a
-    single-peaked force history (rate-dependent laws)."""
+# Width of the "force is at its running maximum" indicator, in force units of
+# m v0^2 / d_ref (peak forces are O(1) there): the tracked peak lags the true
+# one by a few widths.
+_PEAK_WIDTH = 1e-9
+
+
+def _peak_rate(force_fn, force, q, d, v, acc, sc):
+    """Rate of the running-maximum force ``q`` (scaled): ``max(dF/dt, 0)`` while
+    ``F`` is at its running maximum, 0 below it.  Integrated, this is the peak
+    force however many local maxima the history has (the ADAMS law's damping
+    term gives two)."""
     _, dfdt = jax.jvp(force_fn, (d, v), (v, acc))
-    return jnp.maximum(dfdt, 0.0) * sc.time / sc.force
+    at_max = step(force / sc.force - q, _PEAK_WIDTH)
+    return jnp.maximum(dfdt, 0.0) * sc.time / sc.force * at_max
 
 
 def _smooth_field(t, y, args):
@@ -107,7 +116,7 @@ def _smooth_field(t, y, args):
         def force_fn(dd, vv):
             return bound.loading_force_smooth(dd, vv, settings.phase_width)
 
-        parts.append(_peak_rate(bound, force_fn, d, v, acc, sc))
+        parts.append(_peak_rate(force_fn, force, y[-1], d, v, acc, sc))
     return jnp.stack(parts)
 
 
@@ -127,7 +136,7 @@ def _phase_field(t, y, args):
     parts = [u, du]
     if bound.rate_dependent:
         acc = du * sc.speed**2 / sc.length
-        parts.append(_peak_rate(bound, force_fn, d, v, acc, sc))
+        parts.append(_peak_rate(force_fn, force, y[-1], d, v, acc, sc))
     return jnp.stack(parts)
 
 
@@ -187,8 +196,12 @@ def _energy_max_deflection(problem, bound):
 
     d_free = ((n + 1.0) * 0.5 * m * v0**2 / k) ** (1.0 / (n + 1.0))
     d_static = (2.0 * jnp.abs(m * g) / k) ** (1.0 / n)
+    def dh(d, args):
+        k, n, m, g, _ = args
+        return k * d**n - m * g
+
     # Start right of the root (h convex): Newton then converges monotonically.
-    return newton_root(h, d_free + d_static, (k, n, m, g, v0))
+    return newton_root(h, d_free + d_static, (k, n, m, g, v0), fprime=dh)
 
 
 def _solve_smooth(problem, bound, settings, n_history):
