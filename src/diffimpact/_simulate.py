@@ -140,19 +140,31 @@ def _phase_field(t, y, args):
     return jnp.stack(parts)
 
 
+def _default_float(cond):
+    """diffrax 0.7 pairs an event function with a literal ``0.0`` in a
+    ``lax.cond``; under x64 that literal is float64, so a float32 event value
+    fails to trace.  Report event values in the default float dtype."""
+
+    def wrapped(t, y, args, **kw):
+        return cond(t, y, args, **kw).astype(jnp.result_type(float))
+
+    return wrapped
+
+
 def _solve(field, y0, args, settings, conds, directions, dense=False):
     """One diffrax solve that ends at the first of ``conds`` (real-valued,
     located by Newton so the end time is differentiable)."""
     event = diffrax.Event(
-        cond_fn=conds,
+        cond_fn=jax.tree.map(_default_float, conds),
         root_finder=optx.Newton(rtol=settings.event_tol, atol=settings.event_tol),
         direction=directions,
     )
+    # Times in the state's dtype, so that a float32 impact stays float32.
     return diffrax.diffeqsolve(
         diffrax.ODETerm(field),
         settings.solver,
-        t0=0.0,
-        t1=settings.max_time,
+        t0=jnp.zeros((), y0.dtype),
+        t1=jnp.asarray(settings.max_time, y0.dtype),
         dt0=None,
         y0=y0,
         args=args,
