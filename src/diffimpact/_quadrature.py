@@ -28,6 +28,9 @@ import numpy as np
 from ._checks import require
 from ._root import newton_root
 
+# Inner Gauss order of the potential drop over [d, d_m] (measured on the
+# speed/yield grid against a tight event solve: 16 nodes give 4e-11 on the
+# loading time, 8 nodes 4e-10).
 _INNER_ORDER = 16
 
 
@@ -98,18 +101,25 @@ def solve_quadrature(problem, bound, settings):
         # finite (a NaN there would poison gradients through the select).
         e_pl = jnp.where(plastic, energy, 2.0 * u_s)
 
-        def h_pl(d, args):
+        # Newton in y = log(d / d_s): the work grows like a power of d, so
+        # h(d_s e^y) is convex and nearly exponential in y and Newton converges
+        # in a few steps from the power-law estimate below (exponent 1.25,
+        # between the 1.1 and 1.5 of JG-5), however deep the impact.
+        def h_pl(y, args):
             bound_, d_s, u_s, m, g, e = args
             f = lambda x: bound_.loading_force(x, 0.0, 1)  # noqa: E731
-            return u_s + _log_work(f, d_s, jnp.log(d / d_s), order) - m * g * (d - d_s) - e
+            d = d_s * jnp.exp(y)
+            return u_s + _log_work(f, d_s, y, order) - m * g * (d - d_s) - e
 
-        # h_pl is convex: from d_s (left of the root) Newton lands right of the
-        # root and then converges monotonically.
-        def dh_pl(d, args):
-            bound_, _, _, m, g, _ = args
-            return bound_.loading_force(d, 0.0, 1) - m * g
+        def dh_pl(y, args):
+            bound_, d_s, _, m, g, _ = args
+            d = d_s * jnp.exp(y)
+            return (bound_.loading_force(d, 0.0, 1) - m * g) * d
 
-        d_pl = newton_root(h_pl, d_s, (bound, d_s, u_s, m, g, e_pl), fprime=dh_pl)
+        f_s = f_pl(d_s)
+        y0 = jnp.log1p(2.25 * jnp.maximum(e_pl - u_s, 0.0) / (f_s * d_s)) / 2.25
+        y_pl = newton_root(h_pl, y0, (bound, d_s, u_s, m, g, e_pl), fprime=dh_pl)
+        d_pl = d_s * jnp.exp(y_pl)
         d_m = jnp.where(plastic, d_pl, d_el)
     else:
         plastic = False
