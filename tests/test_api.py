@@ -40,7 +40,9 @@ def test_history():
     assert h.time.shape == (201,)
     assert float(h.time[-1]) == pytest.approx(float(r.contact_time), rel=1e-12)
     assert float(h.deflection[0]) == 0.0 and float(h.velocity[0]) == pytest.approx(1.0)
-    assert float(h.deflection[-1]) == pytest.approx(float(r.permanent_deformation), rel=1e-8)
+    assert float(h.deflection[-1]) == pytest.approx(
+        float(r.permanent_deformation), rel=1e-8
+    )
     assert float(h.velocity[-1]) == pytest.approx(-float(r.rebound_velocity), rel=1e-10)
     assert float(jnp.min(h.force)) >= 0.0
     assert float(jnp.max(h.deflection)) <= float(r.max_deflection) * (1 + 1e-9)
@@ -63,7 +65,9 @@ def test_state_carries_only_what_the_law_needs():
     sizes = {}
     for law in (di.Hertz(), di.JacksonGreen(), di.HuntCrossley(0.8)):
         bound = law.bind(problem.contact, problem.velocity)
-        sizes[type(law).__name__] = _simulate._y0(bound, jnp.float64, smooth=True).shape[0]
+        sizes[type(law).__name__] = _simulate._y0(
+            bound, jnp.float64, smooth=True
+        ).shape[0]
     assert sizes == {"Hertz": 2, "JacksonGreen": 4, "HuntCrossley": 5}
 
 

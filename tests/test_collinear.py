@@ -3,7 +3,6 @@ damping calibration of the dissipative laws."""
 
 import jax
 import jax.numpy as jnp
-import numpy as np
 import pytest
 from conftest import rel, steel
 
@@ -33,7 +32,12 @@ def test_exact_formula_matches_data_md():
 
 @pytest.mark.parametrize(
     "law",
-    [di.Hertz(), di.JacksonGreen(), di.HuntCrossley(0.7), di.AdamsImpact(2.5e9, 1.5, 1e3, 1e-5)],
+    [
+        di.Hertz(),
+        di.JacksonGreen(),
+        di.HuntCrossley(0.7),
+        di.AdamsImpact(2.5e9, 1.5, 1e3, 1e-5),
+    ],
     ids=lambda x: type(x).__name__,
 )
 def test_momentum_conserved(law):

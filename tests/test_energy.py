@@ -10,7 +10,9 @@ import diffimpact as di
 
 
 @pytest.mark.parametrize("method", ["smooth", "events", "quadrature"])
-@pytest.mark.parametrize("velocity, yield_strength", [(1.0, 300e6), (5.0, 1e9), (0.05, 80e6)])
+@pytest.mark.parametrize(
+    "velocity, yield_strength", [(1.0, 300e6), (5.0, 1e9), (0.05, 80e6)]
+)
 def test_jackson_green_energy_balance(method, velocity, yield_strength):
     """Loss = int_0^{d_m} F_load dd - int_{d_r}^{d_m} F_unload dd, the integrals by
     adaptive scipy quadrature of the sharp law (a code path the solver never uses)."""
@@ -25,9 +27,21 @@ def test_jackson_green_energy_balance(method, velocity, yield_strength):
     def f_load(d):
         return float(b.loading_force(d, 0.0, 0 if d <= d_s else 1))
 
-    w_load = quad(f_load, 0.0, d_m, points=[d_s] if d_s < d_m else None, epsabs=0, epsrel=1e-12, limit=200)[0]
+    w_load = quad(
+        f_load,
+        0.0,
+        d_m,
+        points=[d_s] if d_s < d_m else None,
+        epsabs=0,
+        epsrel=1e-12,
+        limit=200,
+    )[0]
     w_unload = quad(
-        lambda d: float(b.unloading_force(d, 0.0, d_m, f_m)), d_r, d_m, epsabs=0, epsrel=1e-12
+        lambda d: float(b.unloading_force(d, 0.0, d_m, f_m)),
+        d_r,
+        d_m,
+        epsabs=0,
+        epsrel=1e-12,
     )[0]
     m = float(sc.mass)
     loss = 0.5 * m * (velocity**2 - float(r.rebound_velocity) ** 2)

@@ -40,18 +40,25 @@ def test_closed_forms_over_speeds(method):
 
     r = jax.vmap(run)(speeds)
     for i, v in enumerate(speeds):
-        d_max, t_c, k, c = closed_form(di.scenes.NormalImpact(MASS, RADIUS, mat, mat, v))
+        d_max, t_c, k, c = closed_form(
+            di.scenes.NormalImpact(MASS, RADIUS, mat, mat, v)
+        )
         assert rel(r.max_deflection[i], d_max) < 1e-7
         assert rel(r.contact_time[i], t_c) < 1e-7
         assert rel(r.compression_time[i], t_c / 2) < 1e-7
         # The DEM form's constant 2.8683 has 5 digits: agree to its precision.
-        dem = 2.8683 * (MASS**2 / (RADIUS * float(c.effective_modulus) ** 2 * float(v))) ** 0.2
+        dem = (
+            2.8683
+            * (MASS**2 / (RADIUS * float(c.effective_modulus) ** 2 * float(v))) ** 0.2
+        )
         assert rel(r.contact_time[i], dem) < 2e-5
     for f in ("cor_newton", "cor_poisson", "cor_energetic"):
         np.testing.assert_allclose(getattr(r, f), 1.0, rtol=0, atol=1e-8)
     np.testing.assert_array_equal(r.permanent_deformation, 0.0)
     # Peak force is K d_max^1.5.
-    np.testing.assert_allclose(r.max_force, k * np.asarray(r.max_deflection) ** 1.5, rtol=1e-12)
+    np.testing.assert_allclose(
+        r.max_force, k * np.asarray(r.max_deflection) ** 1.5, rtol=1e-12
+    )
 
 
 def test_general_exponent_closed_form():

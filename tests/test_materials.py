@@ -47,8 +47,13 @@ def test_adams_stiffness_from_materials():
         # MPa * sqrt(mm) = N/mm^1.5, the unit the source quotes K in.
         k = float(c.hertz_stiffness)
         assert k == pytest.approx(expected, rel=1e-4)
-        h = [(1 - m.poisson_ratio**2) / (math.pi * m.youngs_modulus) for m in (steel, other)]
-        k_adams = 4.0 / (3.0 * math.pi * float(sum(h))) * math.sqrt(float(c.effective_radius))
+        h = [
+            (1 - m.poisson_ratio**2) / (math.pi * m.youngs_modulus)
+            for m in (steel, other)
+        ]
+        k_adams = (
+            4.0 / (3.0 * math.pi * float(sum(h))) * math.sqrt(float(c.effective_radius))
+        )
         assert k_adams == pytest.approx(k, rel=1e-12)
 
 
@@ -59,7 +64,10 @@ def test_adams_stiffness_from_materials():
         (dict(youngs_modulus=np.nan, poisson_ratio=0.3), "youngs_modulus"),
         (dict(youngs_modulus=1e9, poisson_ratio=0.5), "poisson_ratio"),
         (dict(youngs_modulus=1e9, poisson_ratio=-1.0), "poisson_ratio"),
-        (dict(youngs_modulus=1e9, poisson_ratio=0.3, yield_strength=0.0), "yield_strength"),
+        (
+            dict(youngs_modulus=1e9, poisson_ratio=0.3, yield_strength=0.0),
+            "yield_strength",
+        ),
         (dict(youngs_modulus=1e9, poisson_ratio=0.3, density=-1.0), "density"),
     ],
 )

@@ -21,7 +21,9 @@ def _law(name: str, cor: float | None):
     if name == "hertz":
         return di.Hertz()
     if cor is None:
-        raise SystemExit(f"error: --law {name} needs --cor (target restitution in (0, 1])")
+        raise SystemExit(
+            f"error: --law {name} needs --cor (target restitution in (0, 1])"
+        )
     cls = {
         "hunt-crossley": di.HuntCrossley,
         "lankarani-nikravesh": di.LankaraniNikravesh,
@@ -31,7 +33,8 @@ def _law(name: str, cor: float | None):
 
 
 def _table(rows, headers):
-    widths = [max(len(str(x)) for x in col) for col in zip(headers, *rows)]
+    columns = zip(headers, *rows, strict=True)
+    widths = [max(len(str(x)) for x in col) for col in columns]
     fmt = "  ".join(f"{{:>{w}}}" for w in widths)
     lines = [fmt.format(*headers), fmt.format(*("-" * w for w in widths))]
     lines += [fmt.format(*r) for r in rows]
@@ -55,7 +58,10 @@ def _report(results: dict) -> str:
     names = list(results)
     rows = []
     for label, field, scale, unit in _FIELDS:
-        rows.append([f"{label} [{unit}]"] + [f"{float(getattr(r, field)) * scale:.8g}" for r in results.values()])
+        rows.append(
+            [f"{label} [{unit}]"]
+            + [f"{float(getattr(r, field)) * scale:.8g}" for r in results.values()]
+        )
     return _table(rows, ["output"] + names)
 
 
@@ -78,15 +84,20 @@ def demo(args) -> int:
     plate = di.Material(youngs_modulus=205e9, poisson_ratio=0.29, yield_strength=355e6)
     radius = 5e-3
     mass = 4.0 / 3.0 * math.pi * radius**3 * 7850.0
-    scene = di.scenes.NormalImpact(mass=mass, radius=radius, body=ball, flat=plate, velocity=args.velocity)
+    scene = di.scenes.NormalImpact(
+        mass=mass, radius=radius, body=ball, flat=plate, velocity=args.velocity
+    )
     print(
-        f"diffimpact demo: a {radius * 2e3:.0f} mm bearing-steel ball ({mass * 1e3:.2f} g) "
+        f"diffimpact demo: a {radius * 2e3:.0f} mm bearing-steel ball "
+        f"({mass * 1e3:.2f} g) "
         f"hits an AISI 1045 plate (S_y = 355 MPa) at {args.velocity} m/s.\n"
         "Modified Jackson-Green contact (elastic, elasto-plastic, restitution);\n"
         "three methods: smooth-switched ODE (default), exact event-switched ODE,\n"
         "and the ODE-free energy quadrature (the exact reference).\n"
     )
-    results, timings = _simulate_all(scene, di.JacksonGreen(), ("smooth", "events", "quadrature"))
+    results, timings = _simulate_all(
+        scene, di.JacksonGreen(), ("smooth", "events", "quadrature")
+    )
     print(_report(results))
     ref = results["quadrature"]
     print("\nrelative difference from quadrature (COR, contact time):")
@@ -94,7 +105,10 @@ def demo(args) -> int:
         r = results[m]
         e1 = abs(float(r.cor_newton / ref.cor_newton) - 1)
         e2 = abs(float(r.contact_time / ref.contact_time) - 1)
-        print(f"  {m:8s} {e1:.1e}  {e2:.1e}   (first call incl. compile {timings[m]:.1f} s)")
+        print(
+            f"  {m:8s} {e1:.1e}  {e2:.1e}   "
+            f"(first call incl. compile {timings[m]:.1f} s)"
+        )
     import jax
 
     def cor(sy):
@@ -103,7 +117,10 @@ def demo(args) -> int:
         return di.simulate(sc, di.JacksonGreen()).cor_newton
 
     g = jax.grad(cor)(355e6)
-    print(f"\nd COR / d S_y = {float(g) * 1e6:.6g} per MPa (jax.grad through the smooth solve)")
+    print(
+        f"\nd COR / d S_y = {float(g) * 1e6:.6g} per MPa "
+        "(jax.grad through the smooth solve)"
+    )
     return 0
 
 
@@ -115,9 +132,13 @@ def simulate_cmd(args) -> int:
     mass = args.mass
     if mass is None:
         mass = 4.0 / 3.0 * math.pi * args.radius**3 * args.density
-    scene = di.scenes.NormalImpact(mass, args.radius, body, flat, args.velocity, args.gravity)
+    scene = di.scenes.NormalImpact(
+        mass, args.radius, body, flat, args.velocity, args.gravity
+    )
     law = _law(args.law, args.cor)
-    methods = [args.method] if args.method != "all" else ["smooth", "events", "quadrature"]
+    methods = (
+        [args.method] if args.method != "all" else ["smooth", "events", "quadrature"]
+    )
     results, _ = _simulate_all(scene, law, methods)
     print(_report(results))
     return 0
@@ -128,23 +149,39 @@ def main(argv=None) -> int:
         prog="diffimpact", description="Differentiable impact simulation in JAX."
     )
     sub = parser.add_subparsers(dest="command", required=True)
-    p = sub.add_parser("demo", help="simulate a steel ball on a steel plate, all methods")
+    p = sub.add_parser(
+        "demo", help="simulate a steel ball on a steel plate, all methods"
+    )
     p.add_argument("--velocity", type=float, default=1.0, help="impact speed [m/s]")
     p.set_defaults(func=demo)
 
     s = sub.add_parser("simulate", help="one normal impact of a sphere on a flat")
-    s.add_argument("--velocity", type=float, required=True, help="approach speed [m/s] (> 0)")
+    s.add_argument(
+        "--velocity", type=float, required=True, help="approach speed [m/s] (> 0)"
+    )
     s.add_argument("--radius", type=float, default=5e-3, help="sphere radius [m]")
-    s.add_argument("--mass", type=float, default=None, help="mass [kg] (default: from density)")
+    s.add_argument(
+        "--mass", type=float, default=None, help="mass [kg] (default: from density)"
+    )
     s.add_argument("--density", type=float, default=7850.0, help="[kg/m^3]")
-    s.add_argument("--gravity", type=float, default=0.0, help="[m/s^2] along the approach")
+    s.add_argument(
+        "--gravity", type=float, default=0.0, help="[m/s^2] along the approach"
+    )
     s.add_argument("--law", choices=_LAWS, default="jackson-green")
-    s.add_argument("--cor", type=float, default=None, help="target COR (dissipative laws)")
-    s.add_argument("--method", choices=("smooth", "events", "quadrature", "all"), default="smooth")
+    s.add_argument(
+        "--cor", type=float, default=None, help="target COR (dissipative laws)"
+    )
+    s.add_argument(
+        "--method", choices=("smooth", "events", "quadrature", "all"), default="smooth"
+    )
     for who, e, nu, sy in (("body", 208e9, 0.3, 2e9), ("flat", 205e9, 0.29, 355e6)):
-        s.add_argument(f"--{who}-modulus", type=float, default=e, help="Young's modulus [Pa]")
+        s.add_argument(
+            f"--{who}-modulus", type=float, default=e, help="Young's modulus [Pa]"
+        )
         s.add_argument(f"--{who}-poisson", type=float, default=nu, help="Poisson ratio")
-        s.add_argument(f"--{who}-yield", type=float, default=sy, help="yield strength [Pa]")
+        s.add_argument(
+            f"--{who}-yield", type=float, default=sy, help="yield strength [Pa]"
+        )
     s.set_defaults(func=simulate_cmd)
 
     args = parser.parse_args(argv)

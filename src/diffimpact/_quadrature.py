@@ -83,6 +83,7 @@ def solve_quadrature(problem, bound, settings):
 
     d_free = ((n + 1.0) * energy / k) ** (1.0 / (n + 1.0))
     d_static = (2.0 * jnp.abs(m * g) / k) ** (1.0 / n)
+
     def dh_el(d, args):
         k, n, m, g, _ = args
         return k * d**n - m * g
@@ -171,7 +172,10 @@ def solve_quadrature(problem, bound, settings):
     v_out = jnp.sqrt(rebound_sq)
 
     def drop_un(s):
-        return -elastic_energy * jnp.expm1((p + 1.0) * jnp.log1p(-(s * s))) - m * g * stroke * s * s
+        return (
+            -elastic_energy * jnp.expm1((p + 1.0) * jnp.log1p(-(s * s)))
+            - m * g * stroke * s * s
+        )
 
     t_un = _travel_time(stroke, drop_un, m, order)
     return dict(

@@ -62,8 +62,6 @@ def _newton_jvp(fn, fprime, rtol, max_iter, lower, primals, tangents):
     dfdx, dfda = jax.grad(fn, argnums=(0, 1))(x, args)
     # Contract the reverse-mode partials with the tangents: linear in the
     # tangents, so JAX can transpose this rule for reverse mode too.
-    terms = jax.tree.leaves(
-        jax.tree.map(lambda g, t: jnp.sum(g * t), dfda, args_dot)
-    )
+    terms = jax.tree.leaves(jax.tree.map(lambda g, t: jnp.sum(g * t), dfda, args_dot))
     dfda_dot = sum(terms) if terms else 0.0
     return x, -dfda_dot / dfdx

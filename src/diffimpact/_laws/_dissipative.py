@@ -11,7 +11,6 @@ then all three laws are the same law and give exactly the requested ``e``.
 from __future__ import annotations
 
 import abc
-
 from typing import ClassVar
 
 import equinox as eqx
@@ -112,6 +111,8 @@ class BoundDampedHertz(AbstractBoundLaw):
 
     def loading_force(self, d, v, phase: int):
         # Clamp at zero: the law must never pull (physics.md section 2).
-        return self.stiffness * safe_pow(d, self.exponent) * jnp.maximum(
-            1.0 + self.damping * v, 0.0
+        return (
+            self.stiffness
+            * safe_pow(d, self.exponent)
+            * jnp.maximum(1.0 + self.damping * v, 0.0)
         )

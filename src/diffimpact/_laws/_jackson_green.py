@@ -158,7 +158,7 @@ class BoundJacksonGreen(AbstractBoundLaw):
 
     def unloading_force(self, d, v, d_m, f_m):
         """JG-10 with the restitution radius of JG-9, written as
-        ``F = F_m ((d - d_r)/(d_m - d_r))^(3/2)`` so that unloading starts at ``F_m``."""
+        ``F = F_m ((d - d_r)/(d_m - d_r))^(3/2)``, so unloading starts at ``F_m``."""
         d_r = self.residual_deflection(d_m)
         ratio = safe_div(d - d_r, d_m - d_r, 1e-300)
         return f_m * safe_pow(ratio, self.law.unloading_exponent)

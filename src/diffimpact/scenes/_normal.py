@@ -74,9 +74,15 @@ class Collinear(AbstractScene):
         require_positive(self.mass2, "Collinear.mass2", "kg")
         require_finite(self.velocity1, "Collinear.velocity1")
         require_finite(self.velocity2, "Collinear.velocity2")
-        _check_approach(self.velocity1 - self.velocity2, "Collinear.velocity1 - velocity2")
+        _check_approach(
+            self.velocity1 - self.velocity2, "Collinear.velocity1 - velocity2"
+        )
         require_positive(self.radius1, "Collinear.radius1", "m")
-        require(self.radius2, self.radius2 > 0, "`Collinear.radius2` must be > 0 (inf for a flat)")
+        require(
+            self.radius2,
+            self.radius2 > 0,
+            "`Collinear.radius2` must be > 0 (inf for a flat)",
+        )
 
     @property
     def reduced_mass(self):
@@ -85,7 +91,9 @@ class Collinear(AbstractScene):
     def normal_problem(self):
         return NormalProblem(
             mass=self.reduced_mass,
-            contact=contact_properties(self.body1, self.body2, self.radius1, self.radius2),
+            contact=contact_properties(
+                self.body1, self.body2, self.radius1, self.radius2
+            ),
             velocity=self.velocity1 - self.velocity2,
             gravity=jnp.zeros_like(self.velocity1),
         )
