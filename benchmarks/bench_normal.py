@@ -449,15 +449,30 @@ def batch_configs() -> list[tuple[str, str, di.SolverSettings]]:
     """(label, method, settings) of the vmapped runs."""
     default = di.SolverSettings()
     return [
-        ("smooth, default (Dopri8 1e-10)", "smooth", default),
+        ("smooth, default (Dopri8 1e-11)", "smooth", default),
         ("smooth, Tsit5 1e-8", "smooth", smooth_settings("Tsit5", 1e-8)),
         ("events, default", "events", default),
         ("quadrature", "quadrature", default),
     ]
 
 
+def switch_distance(velocity, yield_strength, max_deflection) -> np.ndarray:
+    """``|d*_m - 1.9|`` of each impact (distance of its turning point from the
+    elastic / elasto-plastic switch, where the source's law is discontinuous)."""
+
+    def d_c(v, sy):
+        scene = make_scene(v, sy)
+        return LAW.bind(scene.normal_problem().contact, v).d_c
+
+    d_star = np.asarray(max_deflection) / np.asarray(
+        jax.vmap(d_c)(velocity, yield_strength)
+    )
+    return np.abs(d_star - float(LAW.elastic_limit))
+
+
 def bench_batch(config: Config) -> list[list]:
-    """Throughput of vmapped batches and their error vs quadrature."""
+    """Throughput of vmapped batches and their error vs quadrature, also
+    outside the band |d*_m - 1.9| < 0.05 where the exact model's COR jumps."""
     batch = random_batch(config.n_batch)
     results = []
     for label, method, settings in batch_configs():
@@ -465,6 +480,7 @@ def bench_batch(config: Config) -> list[list]:
         out, compile_seconds, seconds = time_jitted(fn, batch, config)
         results.append((label, jax.device_get(out), compile_seconds, seconds))
     reference = results[-1][1]  # quadrature
+    outside = switch_distance(*batch, reference["max_deflection"]) > 0.05
     rows = []
     for label, out, compile_seconds, seconds in results:
         errors = relative_errors(out, reference).max(axis=0)
@@ -474,6 +490,7 @@ def bench_batch(config: Config) -> list[list]:
                 f"{compile_seconds:.1f}",
                 f"{config.n_batch / seconds:,.0f}",
                 f"{np.max(errors):.1e}",
+                f"{np.max(errors[outside]):.1e} ({np.sum(~outside)} in band)",
                 f"{np.median(errors):.1e}",
                 f"{int(np.max(out['num_steps']))}",
             ]
@@ -662,13 +679,18 @@ def main(argv: Sequence[str] | None = None) -> None:
         "compile [s]",
         "impacts/s",
         "max rel. error",
+        "max, |d*_m - 1.9| > 0.05",
         "median rel. error",
         "max steps",
     )
     print(markdown_table(headers, bench_batch(config)))
     print()
 
-    print("## Gradient of cor_newton w.r.t. yield strength (default settings)")
+    print(
+        "## Gradient of cor_newton w.r.t. yield strength (default settings; "
+        "the forward here returns the COR only, so XLA drops the time "
+        "integrals of the quadrature path)"
+    )
     print()
     headers = (
         "method",

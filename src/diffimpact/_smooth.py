@@ -26,6 +26,18 @@ def safe_pow(x, p):
     return jnp.where(positive, x_safe**p, 0.0)
 
 
+def safe_powers(x, *ps):
+    """``(x ** p for p in ps)`` sharing one logarithm, each 0 for ``x <= 0``.
+
+    One ``log`` and one ``exp`` per power instead of a full ``pow`` each (the
+    Jackson-Green force raises ``d*`` to five powers on every evaluation).
+    Gradient-safe like :func:`safe_pow`.
+    """
+    positive = x > 0
+    log_x = jnp.log(jnp.where(positive, x, 1.0))
+    return tuple(jnp.where(positive, jnp.exp(p * log_x), 0.0) for p in ps)
+
+
 def safe_sqrt(x):
     """``sqrt(max(x, 0))`` with a finite gradient at and below zero."""
     positive = x > 0

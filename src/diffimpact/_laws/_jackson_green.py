@@ -15,7 +15,7 @@ from jaxtyping import Array
 
 from .._checks import as_float
 from .._materials import ContactProperties
-from .._smooth import safe_div, safe_pow, safe_sqrt, step
+from .._smooth import safe_div, safe_pow, safe_powers, safe_sqrt, step
 from ._base import AbstractBoundLaw, AbstractNormalLaw
 
 _f = eqx.field
@@ -133,13 +133,17 @@ class BoundJacksonGreen(AbstractBoundLaw):
         """JG-5 with JG-6: force [N] at interference ``d`` [m]."""
         p = self.law
         ds = d / self.d_c
-        first = jnp.exp(-p.ep_decay * safe_pow(ds, p.ep_decay_exponent)) * safe_pow(
-            ds, 1.5
+        # Four powers of d* share one logarithm (the hot path of the ODE).
+        # (d*/1.9)^B keeps its own: B reaches 1e9 for a never-yielding pair,
+        # and d*^B / 1.9^B would then be inf * 0.
+        pw_decay, pw_hertz, pw_hard, pw_ep = safe_powers(
+            ds, p.ep_decay_exponent, 1.5, p.hardness_exponent, p.ep_exponent
         )
+        first = jnp.exp(-p.ep_decay * pw_decay) * pw_hertz
         a = safe_sqrt(self.radius * self.d_c * safe_pow(ds / p.elastic_limit, self.b))
         hg_over_sy = p.hg_a - p.hg_b * (1.0 - jnp.cos(jnp.pi * a / self.radius))
-        hardening = 1.0 - jnp.exp(-safe_pow(ds, p.hardness_exponent) / p.hardness_scale)
-        second = 4.0 * hg_over_sy / self.c * hardening * safe_pow(ds, p.ep_exponent)
+        hardening = 1.0 - jnp.exp(-pw_hard / p.hardness_scale)
+        second = 4.0 * hg_over_sy / self.c * hardening * pw_ep
         return self.ep_scale * self.f_c * (first + second)
 
     def loading_force(self, d, v, phase: int):
