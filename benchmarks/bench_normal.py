@@ -679,7 +679,7 @@ def main(argv: Sequence[str] | None = None) -> None:
         "compile [s]",
         "impacts/s",
         "max rel. error",
-        "max, |d*_m - 1.9| > 0.05",
+        "max, outside switch band",
         "median rel. error",
         "max steps",
     )
