@@ -24,10 +24,18 @@ from ._base import AbstractBoundLaw, AbstractNormalLaw
 
 
 class _AbstractDampedHertz(AbstractNormalLaw):
-    cor: eqx.AbstractVar[Array]
-    exponent: eqx.AbstractVar[Array]
-    stiffness: eqx.AbstractVar[Array | None]
-    calibrated: eqx.AbstractVar[bool]
+    """The fields shared by HC, LN and FL; each subclass only supplies its
+    damping formula.
+
+    **Arguments:** `cor` (target ``e`` in (0, 1]), `exponent` (``n``, 3/2),
+    `stiffness` (``K`` [N/m^n]; ``None`` = Hertz value), `calibrated` (static:
+    replace the formula by the exact root of ``COR = e``).
+    """
+
+    cor: Array = eqx.field(converter=as_float)
+    exponent: Array = eqx.field(converter=as_float, default=1.5)
+    stiffness: Array | None = None
+    calibrated: bool = eqx.field(static=True, default=False)
 
     def __check_init__(self):
         name = type(self).__name__
@@ -62,11 +70,6 @@ class HuntCrossley(_AbstractDampedHertz):
     replace the formula by the exact root of ``COR = e``).
     """
 
-    cor: Array = eqx.field(converter=as_float)
-    exponent: Array = eqx.field(converter=as_float, default=1.5)
-    stiffness: Array | None = None
-    calibrated: bool = eqx.field(static=True, default=False)
-
     def damping_ratio_formula(self):
         return 1.5 * (1.0 - self.cor)
 
@@ -75,11 +78,6 @@ class LankaraniNikravesh(_AbstractDampedHertz):
     """Lankarani-Nikravesh: ``D = 3 (1 - e^2) / (4 v0)`` (LN).  Arguments as
     :class:`HuntCrossley`."""
 
-    cor: Array = eqx.field(converter=as_float)
-    exponent: Array = eqx.field(converter=as_float, default=1.5)
-    stiffness: Array | None = None
-    calibrated: bool = eqx.field(static=True, default=False)
-
     def damping_ratio_formula(self):
         return 0.75 * (1.0 - self.cor**2)
 
@@ -87,11 +85,6 @@ class LankaraniNikravesh(_AbstractDampedHertz):
 class Flores(_AbstractDampedHertz):
     """Flores et al.: ``D = 8 (1 - e) / (5 e v0)`` (FL).  Arguments as
     :class:`HuntCrossley`."""
-
-    cor: Array = eqx.field(converter=as_float)
-    exponent: Array = eqx.field(converter=as_float, default=1.5)
-    stiffness: Array | None = None
-    calibrated: bool = eqx.field(static=True, default=False)
 
     def damping_ratio_formula(self):
         return 1.6 * (1.0 - self.cor) / self.cor
