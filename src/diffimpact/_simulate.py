@@ -326,7 +326,7 @@ def _solve_events(problem, bound, settings):
         t_b = _check_event(sol_b, "maximum compression", settings)
         y_load = jnp.where(switched, sol_b.ys[-1], y_a)
         t_load = jnp.where(switched, t_a + t_b, t_a)
-        steps = steps + sol_b.stats["num_steps"]
+        steps = steps + jnp.where(switched, sol_b.stats["num_steps"], 0)
     else:
         y_load, t_load = y_a, t_a
     d_m = y_load[0] * sc.length
