@@ -23,6 +23,7 @@ from ._laws._base import AbstractNormalLaw as AbstractNormalLaw
 from ._laws._dissipative import Flores as Flores
 from ._laws._dissipative import HuntCrossley as HuntCrossley
 from ._laws._dissipative import LankaraniNikravesh as LankaraniNikravesh
+from ._laws._friction import Friction as Friction
 from ._laws._hertz import Hertz as Hertz
 from ._laws._jackson_green import JacksonGreen as JacksonGreen
 from ._materials import ContactProperties as ContactProperties

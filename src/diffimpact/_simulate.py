@@ -423,7 +423,15 @@ def _validated(problem: NormalProblem) -> NormalProblem:
 
 
 @eqx.filter_jit
-def _simulate(scene, law, method, settings, n_history):
+def _simulate(scene, law, method, settings, n_history, friction=None):
+    from .scenes._planar import AbstractPlanarScene
+
+    if isinstance(scene, AbstractPlanarScene) and friction is not None:
+        from ._planar_solve import solve_planar
+
+        return solve_planar(scene, law, friction, settings)
+    # Frictionless (or 1-DOF) scenes: the normal DOF decouples, so the scene is
+    # solved as its 1-DOF normal problem, with no tangential state at all.
     problem = _validated(scene.normal_problem())
     bound = _bind(law, problem)
     if method == "smooth":
@@ -435,7 +443,10 @@ def _simulate(scene, law, method, settings, n_history):
 
         raw = solve_quadrature(problem, bound, settings)
     out = _assemble(problem, bound, raw)
-    return ImpactResult(**out, extras=scene.extras(out["rebound_velocity"]))
+    extras = scene.extras(out["rebound_velocity"])
+    if isinstance(scene, AbstractPlanarScene):
+        extras = {**extras, **scene.frictionless_report(out["contact_time"])}
+    return ImpactResult(**out, extras=extras)
 
 
 def simulate(
@@ -443,6 +454,7 @@ def simulate(
     law: AbstractNormalLaw,
     method: str = "smooth",
     *,
+    friction=None,
     settings: SolverSettings = SolverSettings(),
     n_history: int = 0,
 ) -> ImpactResult:
@@ -455,6 +467,9 @@ def simulate(
     - `law`: a normal force law (:class:`Hertz`, :class:`JacksonGreen`, ...).
     - `method`: ``"smooth"`` (default), ``"events"`` or ``"quadrature"``.
     - `settings`: a :class:`SolverSettings`.
+    - `friction`: a :class:`Friction` at the contact point, for planar scenes
+      (e.g. :class:`diffimpact.scenes.SphereOnIncline`); None = frictionless,
+      which solves the decoupled 1-DOF normal problem (no tangential state).
     - `n_history`: number of equally spaced samples of deflection, velocity and
       force to return in ``result.history`` (``"smooth"`` only; 0 = none).
 
@@ -477,4 +492,6 @@ def simulate(
         raise ValueError(
             "`n_history` must be >= 0, and histories come from method='smooth'"
         )
-    return _simulate(scene, law, method, settings, n_history)
+    if friction is not None and method != "smooth":
+        raise ValueError("friction is solved by method='smooth' only")
+    return _simulate(scene, law, method, settings, n_history, friction)

@@ -39,6 +39,8 @@ class SolverSettings(eqx.Module):
       impact lasts 2.94 of them).
     - `event_tol`: tolerance of the Newton solve that locates separation.
     - `quadrature_order`: Gauss-Legendre nodes of the quadrature method.
+    - `slip_width`: width of the smooth ``sgn(v_t)`` of friction (F-1), as a
+      fraction of the normal approach speed.
     """
 
     solver: diffrax.AbstractSolver = eqx.field(static=True, default=diffrax.Dopri8())
@@ -50,3 +52,4 @@ class SolverSettings(eqx.Module):
     max_time: float = eqx.field(static=True, default=100.0)
     event_tol: float = eqx.field(static=True, default=1e-13)
     quadrature_order: int = eqx.field(static=True, default=32)
+    slip_width: float = eqx.field(static=True, default=1e-4)

@@ -4,3 +4,5 @@ from ._base import AbstractScene as AbstractScene
 from ._base import NormalProblem as NormalProblem
 from ._normal import Collinear as Collinear
 from ._normal import NormalImpact as NormalImpact
+from ._planar import AbstractPlanarScene as AbstractPlanarScene
+from ._planar import SphereOnIncline as SphereOnIncline

@@ -1,0 +1,145 @@
+"""Planar rigid bodies against a fixed flat (physics.md section 6).
+
+A planar scene has generalised coordinates ``q`` (n of them) with a constant
+diagonal mass matrix, and says where its contact point is: the interference
+``d(q)`` and the Jacobians ``J_n``, ``J_t`` that give the interference rate
+``d_dot = J_n q_dot`` and the sliding velocity of the contact point
+``v_t = J_t q_dot``.  The contact forces enter as ``-J_n F_n + J_t F_t``.
+"""
+
+from __future__ import annotations
+
+import abc
+
+import equinox as eqx
+import jax.numpy as jnp
+from jaxtyping import Array
+
+from .._checks import as_float, require, require_positive
+from .._materials import Material, contact_properties
+from ._base import AbstractScene, NormalProblem
+
+
+class AbstractPlanarScene(AbstractScene):
+    @abc.abstractmethod
+    def mass_diagonal(self) -> Array:
+        """Diagonal of the constant generalised mass matrix, shape ``(n,)``."""
+
+    @abc.abstractmethod
+    def initial_state(self) -> tuple[Array, Array]:
+        """``(q0, q_dot0)`` at first contact (``d(q0) = 0``)."""
+
+    @abc.abstractmethod
+    def kinematics(self, q) -> tuple[Array, Array, Array]:
+        """``(d, J_n, J_t)`` at configuration ``q``."""
+
+    @abc.abstractmethod
+    def generalized_gravity(self) -> Array:
+        """Generalised gravity force, shape ``(n,)``."""
+
+    @abc.abstractmethod
+    def contact(self):
+        """The :class:`ContactProperties` of the pair."""
+
+    def report(self, q, q_dot) -> dict:
+        """What an experimenter measures, from the state after separation."""
+        return {}
+
+
+class SphereOnIncline(AbstractPlanarScene):
+    """A ball dropped vertically from height ``h`` onto a plane tilted ``phi``
+    (data.md A: the Alaci ball-prism experiments).
+
+    Coordinates ``q = (n, t, theta)`` in the plane's frame: ``n`` into the plane
+    (so ``d = n``), ``t`` down the slope, ``theta`` the spin, with ``v_t =
+    t_dot + r theta_dot`` the sliding velocity of the contact point.  The fall
+    is ballistic: ``v' = sqrt(2 g h)``, split into ``v' cos(phi)`` normal and
+    ``v' sin(phi)`` tangential (closed form, not integrated).  Gravity also
+    acts during the contact.
+
+    **Arguments:** `mass` [kg], `radius` [m], `body`, `flat` (materials),
+    `angle` (``phi`` [rad], in [0, pi/2)), `height` [m] (> 0), `gravity`
+    [m/s^2] (> 0, default 9.81).
+    """
+
+    mass: Array = eqx.field(converter=as_float)
+    radius: Array = eqx.field(converter=as_float)
+    body: Material
+    flat: Material
+    angle: Array = eqx.field(converter=as_float)
+    height: Array = eqx.field(converter=as_float)
+    gravity: Array = eqx.field(converter=as_float, default=9.81)
+
+    def __check_init__(self):
+        require_positive(self.mass, "SphereOnIncline.mass", "kg")
+        require_positive(self.radius, "SphereOnIncline.radius", "m")
+        require(
+            self.angle,
+            jnp.isfinite(self.angle) & (self.angle >= 0) & (self.angle < jnp.pi / 2),
+            "`SphereOnIncline.angle` must lie in [0, pi/2) rad",
+        )
+        require_positive(
+            self.height,
+            "SphereOnIncline.height (a drop height <= 0 gives no contact)",
+            "m",
+        )
+        require_positive(self.gravity, "SphereOnIncline.gravity", "m/s^2")
+
+    @property
+    def impact_speed(self):
+        """``v' = sqrt(2 g h)`` [m/s] (data.md A)."""
+        return jnp.sqrt(2.0 * self.gravity * self.height)
+
+    @property
+    def inertia(self):
+        return 0.4 * self.mass * self.radius**2
+
+    def mass_diagonal(self):
+        return jnp.stack([self.mass, self.mass, self.inertia])
+
+    def initial_state(self):
+        v = self.impact_speed
+        zero = jnp.zeros_like(v)
+        q0 = jnp.stack([zero, zero, zero])
+        q_dot0 = jnp.stack([v * jnp.cos(self.angle), v * jnp.sin(self.angle), zero])
+        return q0, q_dot0
+
+    def kinematics(self, q):
+        one, zero = jnp.ones_like(self.radius), jnp.zeros_like(self.radius)
+        j_n = jnp.stack([one, zero, zero])
+        j_t = jnp.stack([zero, one, self.radius])
+        return q[0], j_n, j_t
+
+    def generalized_gravity(self):
+        mg = self.mass * self.gravity
+        return jnp.stack(
+            [mg * jnp.cos(self.angle), mg * jnp.sin(self.angle), jnp.zeros_like(mg)]
+        )
+
+    def contact(self):
+        return contact_properties(self.body, self.flat, self.radius)
+
+    def normal_problem(self):
+        """Without friction the normal DOF decouples: a 1-DOF impact."""
+        return NormalProblem(
+            mass=self.mass,
+            contact=self.contact(),
+            velocity=self.impact_speed * jnp.cos(self.angle),
+            gravity=self.gravity * jnp.cos(self.angle),
+        )
+
+    def report(self, q, q_dot):
+        return {
+            "normal_velocity_after": -q_dot[0],
+            "tangential_velocity_after": q_dot[1],
+            "angular_velocity_after": q_dot[2],
+        }
+
+    def frictionless_report(self, contact_time):
+        """Tangential velocity and spin without friction: gravity alone acts."""
+        v_t = self.impact_speed * jnp.sin(self.angle)
+        return {
+            "tangential_velocity_after": v_t
+            + self.gravity * jnp.sin(self.angle) * contact_time,
+            "angular_velocity_after": jnp.zeros_like(v_t),
+        }

@@ -1,0 +1,152 @@
+"""Sphere on an inclined flat with friction (data.md A, physics.md sections 3, 6)."""
+
+import math
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import pytest
+from conftest import rel
+
+import diffimpact as di
+from diffimpact import _simulate
+
+BALL = di.Material(208e9, 0.3, 2e9)
+PRISM = di.Material(205e9, 0.29, 2e9)
+R = 9.5e-3  # data.md A: 19 mm bearing ball
+M = 4.0 / 3.0 * math.pi * R**3 * 7850.0
+E = 0.7
+LAW = di.HuntCrossley(cor=E, calibrated=True)
+# The stick phase of a regularised Coulomb law is stiff for an explicit solver
+# (~3,500 steps in the rolling case): give friction scenes a larger budget.
+FRICTION_SETTINGS = di.SolverSettings(max_steps=16384)
+
+
+def scene(phi_deg, height=0.29):
+    return di.scenes.SphereOnIncline(M, R, BALL, PRISM, math.radians(phi_deg), height)
+
+
+def routh(phi, mu, v):
+    """Routh's percussion-plane results (physics.md section 6)."""
+    if mu <= 2.0 / 7.0 * math.tan(phi) / (1.0 + E):
+        v_t = (math.sin(phi) - mu * (1.0 + E) * math.cos(phi)) * v
+        omega = -2.5 * mu * (1.0 + E) * math.cos(phi) * v / R
+    else:
+        v_t = 5.0 / 7.0 * math.sin(phi) * v
+        omega = -5.0 / 7.0 * math.sin(phi) * v / R
+    return E * math.cos(phi) * v, v_t, omega
+
+
+@pytest.mark.parametrize(
+    "phi_deg, mu, regime",
+    [(45.0, 0.05, "sliding"), (34.1, 0.1, "sliding"), (26.0, 0.3, "rolling")],
+)
+def test_rigid_limit_matches_routh(phi_deg, mu, regime):
+    """Stiff Hertz contact with restitution calibrated to e: within 1e-3 of the
+    rigid-body theory in both regimes (the residual is mostly gravity acting
+    during the contact, which Routh neglects)."""
+    sc = scene(phi_deg)
+    phi = math.radians(phi_deg)
+    critical = 2.0 / 7.0 * math.tan(phi) / (1.0 + E)
+    assert (mu <= critical) == (regime == "sliding")
+    r = di.simulate(sc, LAW, friction=di.Friction(mu), settings=FRICTION_SETTINGS)
+    v_n, v_t, omega = routh(phi, mu, float(sc.impact_speed))
+    assert rel(r.extras["normal_velocity_after"], v_n) < 1e-3
+    assert rel(r.extras["tangential_velocity_after"], v_t) < 1e-3
+    assert rel(r.extras["angular_velocity_after"], omega) < 1e-3
+    if regime == "rolling":
+        # Ends rolling: the contact point has (nearly) stopped sliding.
+        assert abs(float(r.extras["cor_tangential"])) < 1e-3
+
+
+def test_frictionless_is_the_normal_impact(monkeypatch):
+    """Without friction the scene solves its 1-DOF normal problem, exactly the
+    NormalImpact answer, and the compiled solve carries no tangential state."""
+    sizes = []
+    original = _simulate._solve
+
+    def recording(field, y0, *args, **kw):
+        sizes.append(y0.shape[0])
+        return original(field, y0, *args, **kw)
+
+    monkeypatch.setattr(_simulate, "_solve", recording)
+    law = di.JacksonGreen()
+    sc = scene(30.0)
+    phi = math.radians(30.0)
+    oblique = eqx.filter_jit(lambda s: di.simulate(s, law))(sc)
+    cos = jnp.cos(sc.angle)  # the same arithmetic as the scene: bit-identical
+    normal = eqx.filter_jit(lambda s: di.simulate(s, law))(
+        di.scenes.NormalImpact(
+            M, R, BALL, PRISM, sc.impact_speed * cos, sc.gravity * cos
+        )
+    )
+    for f in ("contact_time", "cor_newton", "max_deflection", "permanent_deformation"):
+        assert float(getattr(oblique, f)) == float(getattr(normal, f)), f
+    assert sizes and max(sizes) == 4  # [d, d_dot, d_m, t_load]: no t, no spin
+    v_t = float(oblique.extras["tangential_velocity_after"])
+    # Only gravity acts along the plane: v_t'' = v' sin(phi) + g sin(phi) t_c.
+    t_c = float(oblique.contact_time)
+    expected = (float(sc.impact_speed) + 9.81 * t_c) * math.sin(phi)
+    assert v_t == pytest.approx(expected, rel=1e-12)
+    assert float(oblique.extras["angular_velocity_after"]) == 0.0
+
+
+def _mu_gradient(law):
+    def v_t(mu, settings=di.SolverSettings()):
+        r = di.simulate(scene(45.0), law, friction=di.Friction(mu), settings=settings)
+        return r.extras["tangential_velocity_after"]
+
+    tight = di.SolverSettings(rtol=1e-13, atol=1e-15)
+    h = 1e-4
+    fd = (v_t(0.05 + h, tight) - v_t(0.05 - h, tight)) / (2 * h)
+    return jax.grad(v_t)(0.05), fd
+
+
+def test_friction_gradient_matches_routh_derivative():
+    """Sliding regime: d v_t'' / d mu = -(1 + e) cos(phi) v' in the rigid limit
+    (e = 1 for the elastic part of JG below yield; S_y = 2 GPa here), plus
+    -g cos(phi) t_c from gravity during the contact.  The AD gradient also
+    matches central differences of a tightly converged solve."""
+    phi = math.radians(45.0)
+    law = di.JacksonGreen()
+    g, fd = _mu_gradient(law)
+    r = di.simulate(scene(45.0), law, friction=di.Friction(0.05))
+    e = float(r.cor_newton)
+    v = float(scene(45.0).impact_speed)
+    expected = -(1.0 + e) * math.cos(phi) * v - 9.81 * math.cos(phi) * float(
+        r.contact_time
+    )
+    assert rel(g, expected) < 1e-4
+    assert rel(g, fd) < 1e-5
+
+
+@pytest.mark.xfail(
+    strict=True,
+    reason="KNOWN BUG (open): with friction, the mu-gradient of the tangential "
+    "rebound velocity is wrong for the Hunt-Crossley family (12 % uncalibrated, "
+    "0.4 % calibrated) although its values, its impulse gradients and dT/dmu are "
+    "right, and Hertz, JG and ADAMS gradients are right. Not yet located.",
+)
+def test_friction_gradient_hunt_crossley():
+    g, fd = _mu_gradient(di.HuntCrossley(cor=0.7))
+    assert rel(g, fd) < 1e-4
+
+
+@pytest.mark.parametrize(
+    "make, match",
+    [
+        (lambda: scene(90.0), "angle"),
+        (lambda: scene(-1.0), "angle"),
+        (lambda: scene(30.0, height=0.0), "no contact"),
+        (lambda: di.Friction(-0.1), "Friction.mu"),
+        (lambda: di.Friction(0.2, mu_v=-1.0), "Friction.mu_v"),
+    ],
+)
+def test_bad_input(make, match):
+    with pytest.raises(ValueError, match=match):
+        make()
+
+
+def test_friction_needs_smooth():
+    with pytest.raises(ValueError, match="friction"):
+        di.simulate(scene(30.0), LAW, "events", friction=di.Friction(0.2))
