@@ -126,8 +126,10 @@ def test_friction_gradient_matches_routh_derivative():
     "rebound velocity is wrong for the Hunt-Crossley family (12 % uncalibrated, "
     "0.4 % calibrated, drifting with the step count) although its values, its "
     "impulse gradients and dT/dmu are right, and Hertz, JG and ADAMS gradients "
-    "are right. Clue: without the running-peak-force state (rate_dependent "
-    "forced False) the gradient is correct (-3.37377 vs FD -3.37378).",
+    "are right. Clues: without the running-peak-force state (rate_dependent "
+    "forced False) the gradient is correct (-3.37377 vs FD -3.37378); widening "
+    "_PEAK_WIDTH from 1e-9 to 1e-6 fixes HC(cor=1) but leaves HC(cor=0.7) 0.4 % "
+    "off and loosens the tracked peak beyond the 1e-5 energy test.",
 )
 def test_friction_gradient_hunt_crossley():
     g, fd = _mu_gradient(di.HuntCrossley(cor=0.7))
