@@ -27,6 +27,7 @@ from ._simulate import (
     _scales,
     _smooth_force,
     _solve,
+    result_fields,
 )
 from ._smooth import step
 from .scenes._base import NormalProblem
@@ -176,21 +177,16 @@ def solve_planar(scene, law, friction, settings):
         "tangential_impulse_restitution": acc[3] * impulse_unit,
         **scene.report(q, q_dot),
     }
-    return ImpactResult(
+    fields = result_fields(
         contact_time=contact_time,
         compression_time=compression_time,
-        restitution_time=contact_time - compression_time,
+        approach_velocity=v0,
         rebound_velocity=-v_n,
-        cor_newton=-v_n / v0,
-        cor_poisson=i_rest / i_comp,
-        cor_energetic=jnp.sqrt(w_rest / w_comp),
+        impulses=(i_comp, i_rest),
+        works=(w_comp, w_rest),
         max_force=max_force,
         max_deflection=d_m,
         permanent_deformation=bound.residual_deflection(d_m),
-        impulse_compression=i_comp,
-        impulse_restitution=i_rest,
-        work_compression=w_comp,
-        work_restitution=w_rest,
         num_steps=sol.stats["num_steps"],
-        extras=extras,
     )
+    return ImpactResult(**fields, extras=extras)

@@ -356,8 +356,48 @@ def _solve_events(problem, bound, settings):
     return out
 
 
+def result_fields(
+    *,
+    contact_time,
+    compression_time,
+    approach_velocity,
+    rebound_velocity,
+    impulses,
+    works,
+    max_force,
+    max_deflection,
+    permanent_deformation,
+    num_steps,
+    history=None,
+) -> dict:
+    """The :class:`ImpactResult` fields shared by every solver, with the three
+    coefficients of restitution of physics.md section 5 (Newton from the normal
+    velocities, Poisson from the normal impulses, energetic from the normal
+    works of compression and restitution)."""
+    i_comp, i_rest = impulses
+    w_comp, w_rest = works
+    return dict(
+        contact_time=contact_time,
+        compression_time=compression_time,
+        restitution_time=contact_time - compression_time,
+        rebound_velocity=rebound_velocity,
+        cor_newton=rebound_velocity / approach_velocity,
+        cor_poisson=i_rest / i_comp,
+        cor_energetic=jnp.sqrt(w_rest / w_comp),
+        max_force=max_force,
+        max_deflection=max_deflection,
+        permanent_deformation=permanent_deformation,
+        impulse_compression=i_comp,
+        impulse_restitution=i_rest,
+        work_compression=w_comp,
+        work_restitution=w_rest,
+        num_steps=num_steps,
+        history=history,
+    )
+
+
 def _assemble(problem: NormalProblem, bound: AbstractBoundLaw, raw: dict) -> dict:
-    """Derived outputs (physics.md section 5), from momentum and energy balance.
+    """Derived outputs of a 1-DOF impact, from momentum and energy balance.
 
     Compression impulse ``m v0 + m g t_load`` and restitution impulse
     ``m v_out + m g t_rest`` follow from the momentum theorem; the works
@@ -369,29 +409,19 @@ def _assemble(problem: NormalProblem, bound: AbstractBoundLaw, raw: dict) -> dic
     d_r = bound.residual_deflection(d_m)
     v_out = raw["rebound_velocity"]
     t_c, t_load = raw["contact_time"], raw["compression_time"]
-    t_rest = t_c - t_load
-    i_comp = m * v0 + m * g * t_load
-    i_rest = m * v_out + m * g * t_rest
-    w_comp = 0.5 * m * v0**2 + m * g * d_m
-    w_rest = 0.5 * m * v_out**2 + m * g * (d_m - d_r)
     max_force = raw.get("max_force")
     if max_force is None:
         max_force = bound.peak_force(d_m)
-    return dict(
+    return result_fields(
         contact_time=t_c,
         compression_time=t_load,
-        restitution_time=t_rest,
+        approach_velocity=v0,
         rebound_velocity=v_out,
-        cor_newton=v_out / v0,
-        cor_poisson=i_rest / i_comp,
-        cor_energetic=jnp.sqrt(w_rest / w_comp),
+        impulses=(m * v0 + m * g * t_load, m * v_out + m * g * (t_c - t_load)),
+        works=(0.5 * m * v0**2 + m * g * d_m, 0.5 * m * v_out**2 + m * g * (d_m - d_r)),
         max_force=max_force,
         max_deflection=d_m,
         permanent_deformation=d_r,
-        impulse_compression=i_comp,
-        impulse_restitution=i_rest,
-        work_compression=w_comp,
-        work_restitution=w_rest,
         num_steps=raw["num_steps"],
         history=raw.get("history"),
     )
