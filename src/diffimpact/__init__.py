@@ -17,6 +17,13 @@ if not _os.environ.get("DIFFIMPACT_NO_X64"):
 
 from . import scenes as scenes
 from ._calibrate import damping_ratio as damping_ratio
+from ._data import DataError as DataError
+from ._data import ExperimentData as ExperimentData
+from ._data import load_experiments as load_experiments
+from ._data import write_experiments as write_experiments
+from ._fit import FitResult as FitResult
+from ._fit import IdentifiabilityWarning as IdentifiabilityWarning
+from ._fit import fit as fit
 from ._laws._adams import AdamsImpact as AdamsImpact
 from ._laws._base import AbstractBoundLaw as AbstractBoundLaw
 from ._laws._base import AbstractNormalLaw as AbstractNormalLaw
@@ -31,6 +38,8 @@ from ._materials import Material as Material
 from ._materials import contact_properties as contact_properties
 from ._materials import effective_modulus as effective_modulus
 from ._materials import effective_radius as effective_radius
+from ._observables import Experiment as Experiment
+from ._observables import predict as predict
 from ._result import History as History
 from ._result import ImpactResult as ImpactResult
 from ._simulate import simulate as simulate

@@ -174,6 +174,7 @@ def _solve(field, y0, args, settings, conds, directions, dense=False):
         saveat=diffrax.SaveAt(t1=True, dense=dense),
         event=event,
         max_steps=settings.max_steps,
+        adjoint=settings.adjoint,
     )
 
 

@@ -41,6 +41,11 @@ class SolverSettings(eqx.Module):
     - `quadrature_order`: Gauss-Legendre nodes of the quadrature method.
     - `slip_width`: width of the smooth ``sgn(v_t)`` of friction (F-1), as a
       fraction of the normal approach speed.
+    - `adjoint`: how diffrax differentiates the solve.  The default
+      ``RecursiveCheckpointAdjoint`` supports reverse mode (``jax.grad``);
+      ``diffrax.ForwardMode()`` supports forward mode (``jax.jvp``,
+      ``jax.jacfwd``), which is cheaper when there are fewer parameters than
+      outputs, as in least-squares fitting (:func:`diffimpact.fit` uses it).
     """
 
     solver: diffrax.AbstractSolver = eqx.field(static=True, default=diffrax.Dopri8())
@@ -53,3 +58,6 @@ class SolverSettings(eqx.Module):
     event_tol: float = eqx.field(static=True, default=1e-13)
     quadrature_order: int = eqx.field(static=True, default=32)
     slip_width: float = eqx.field(static=True, default=1e-4)
+    adjoint: diffrax.AbstractAdjoint = eqx.field(
+        static=True, default=diffrax.RecursiveCheckpointAdjoint()
+    )

@@ -1,0 +1,105 @@
+"""Make the synthetic experiment files in data/ from known parameters.
+
+    python data/make_synthetic.py [--force]
+
+Writes ``synthetic_sphere_on_incline_noise1pct.csv`` (1 % Gaussian noise on every
+output, with matching ``sigma_`` columns) and
+``synthetic_sphere_on_incline_noiseless.csv`` (exact model outputs), from the
+ball-prism scene (data.md A's ball and prism, the Jackson-Green law) with the
+true parameters in TRUTH, over a grid of drop heights and incline angles.
+The seed is fixed, so the files are reproducible.
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+import diffimpact as di
+
+TRUTH = {"yield_strength": 450e6, "mu": 0.15, "mu_v": 30.0, "ep_exponent": 1.1}
+HEIGHTS_M = [0.05, 0.2, 0.5, 1.0]
+ANGLES_DEG = [40.0, 50.0, 60.0, 70.0, 80.0]
+NOISE = 0.01
+SEED = 20261122
+# Output -> (column name, factor from SI to the column's unit).
+COLUMNS = {
+    "cor_normal": ("cor_normal", 1.0),
+    "cor_tangential": ("cor_tangential", 1.0),
+    "contact_time": ("contact_time_us", 1e6),
+    "angular_velocity": ("angular_velocity_rad_s", 1.0),
+    "permanent_deformation": ("permanent_deformation_um", 1e6),
+}
+
+
+def true_experiment():
+    exp = di.Experiment.default("sphere_on_incline")
+    return eqx.tree_at(
+        lambda e: [
+            e.scene.flat.yield_strength,
+            e.friction.mu,
+            e.friction.mu_v,
+            e.law.ep_exponent,
+        ],
+        exp,
+        [TRUTH["yield_strength"], TRUTH["mu"], TRUTH["mu_v"], TRUTH["ep_exponent"]],
+    )
+
+
+def simulate_grid():
+    h, a = (x.ravel() for x in np.meshgrid(HEIGHTS_M, ANGLES_DEG, indexing="ij"))
+    exp = true_experiment()
+
+    def one(height, angle):
+        out = di.predict(exp, {"drop_height": height, "angle": angle})
+        return {q: out[q] for q in COLUMNS}
+
+    outputs = jax.jit(jax.vmap(one))(jnp.asarray(h), jnp.radians(jnp.asarray(a)))
+    return h, a, {q: np.asarray(v) for q, v in outputs.items()}
+
+
+def main(argv=None):
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--force", action="store_true", help="overwrite the files")
+    parser.add_argument("--dir", default=os.path.dirname(os.path.abspath(__file__)))
+    args = parser.parse_args(argv)
+    h, a, outputs = simulate_grid()
+    rng = np.random.default_rng(SEED)
+    truth = ", ".join(f"{k} = {v:g}" for k, v in TRUTH.items())
+    for name, noise in (("noiseless", 0.0), ("noise1pct", NOISE)):
+        cols = {"drop_height_m": h, "angle_deg": a}
+        for q, (col, factor) in COLUMNS.items():
+            exact = outputs[q] * factor
+            cols[col] = exact * (1.0 + noise * rng.standard_normal(exact.shape))
+            if noise:
+                cols["sigma_" + col] = noise * np.abs(exact)
+        path = os.path.join(args.dir, f"synthetic_sphere_on_incline_{name}.csv")
+        if os.path.exists(path) and args.force:
+            os.remove(path)
+        di.write_experiments(
+            path,
+            cols,
+            scene="sphere_on_incline",
+            provenance=(
+                "SYNTHETIC data made by data/make_synthetic.py (not measurements).\n"
+                "Scene: sphere_on_incline with its defaults (data.md A ball and "
+                "prism), Jackson-Green law, Coulomb + viscous friction.\n"
+                f"True parameters: {truth} (mu_v in N s/m, yield_strength in Pa).\n"
+                + (
+                    f"Noise: {noise:.0%} Gaussian, relative, on every output "
+                    f"(seed {SEED}); sigma_ columns give its standard deviation."
+                    if noise
+                    else "Noise: none (exact model outputs)."
+                )
+            ),
+        )
+        print("wrote", path)
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,375 @@
+"""Experiment CSV files: the schema, units and a validating loader.
+
+One row per impact.  A column name is a quantity followed by its unit,
+``<quantity>_<unit>`` (``contact_time_us``, ``drop_height_m``, ``angle_deg``);
+dimensionless quantities carry no unit (``cor_normal``).  Lines starting with
+``#`` before the header are the provenance note (paper, table, how the numbers
+were made) and are kept with the data.  Columns:
+
+- ``scene`` (optional): the scene every row uses (one scene per file), e.g.
+  ``sphere_on_incline``;
+- inputs: what was set for each impact (drop height, impact speed, angle, ...);
+- measured outputs: what was measured (contact time, rebound velocities,
+  CORs, ...); an empty cell means "not measured in this row";
+- uncertainties (optional): ``sigma_<quantity>_<unit>``, one standard deviation
+  of a measured output, in any unit of its dimension.
+
+:data:`QUANTITIES` lists every quantity with its dimension, and :data:`UNITS`
+every unit with its factor to SI.  The loader converts everything to SI.
+"""
+
+from __future__ import annotations
+
+import csv
+import dataclasses
+import math
+import os
+
+import numpy as np
+
+# unit suffix -> (dimension, factor to SI)
+UNITS: dict[str, tuple[str, float]] = {
+    "m": ("length", 1.0),
+    "mm": ("length", 1e-3),
+    "um": ("length", 1e-6),
+    "s": ("time", 1.0),
+    "ms": ("time", 1e-3),
+    "us": ("time", 1e-6),
+    "m_s": ("velocity", 1.0),
+    "mm_s": ("velocity", 1e-3),
+    "deg": ("angle", math.pi / 180.0),
+    "rad": ("angle", 1.0),
+    "rad_s": ("angular_velocity", 1.0),
+    "deg_s": ("angular_velocity", math.pi / 180.0),
+    "rpm": ("angular_velocity", 2.0 * math.pi / 60.0),
+    "kg": ("mass", 1.0),
+    "g": ("mass", 1e-3),
+    "n": ("force", 1.0),
+    "kn": ("force", 1e3),
+    "pa": ("stress", 1.0),
+    "mpa": ("stress", 1e6),
+    "gpa": ("stress", 1e9),
+}
+
+_SI = {
+    "length": "m",
+    "time": "s",
+    "velocity": "m/s",
+    "angle": "rad",
+    "angular_velocity": "rad/s",
+    "mass": "kg",
+    "force": "N",
+    "stress": "Pa",
+    "dimensionless": "-",
+}
+
+
+@dataclasses.dataclass(frozen=True)
+class Quantity:
+    name: str
+    dimension: str
+    role: str  # "input" or "output"
+    nonnegative: bool
+    doc: str
+
+
+def _q(name, dimension, role, nonnegative, doc):
+    return Quantity(name, dimension, role, nonnegative, doc)
+
+
+QUANTITIES: dict[str, Quantity] = {
+    q.name: q
+    for q in [
+        _q("drop_height", "length", "input", True, "height of the drop"),
+        _q("impact_velocity", "velocity", "input", True, "normal approach speed"),
+        _q("angle", "angle", "input", True, "incline / impact angle"),
+        _q("release_angle", "angle", "input", True, "release angle of a link"),
+        _q("link_length", "length", "input", True, "length of a rotating link"),
+        _q("mass", "mass", "input", True, "mass of the moving body"),
+        _q("radius", "length", "input", True, "radius of the sphere or tip"),
+        _q("contact_time", "time", "output", True, "first contact to separation"),
+        _q(
+            "rebound_velocity",
+            "velocity",
+            "output",
+            True,
+            "normal rebound speed of the contact point",
+        ),
+        _q(
+            "tangential_velocity",
+            "velocity",
+            "output",
+            False,
+            "tangential velocity of the centre of mass after the impact",
+        ),
+        _q("angular_velocity", "angular_velocity", "output", False, "spin after"),
+        _q("cor_normal", "dimensionless", "output", True, "Newton's COR e_n"),
+        _q(
+            "cor_tangential",
+            "dimensionless",
+            "output",
+            False,
+            "tangential COR e_t of the centre of mass (data.md A)",
+        ),
+        _q("max_force", "force", "output", True, "peak normal contact force"),
+        _q("max_deflection", "length", "output", True, "maximum interference d_m"),
+        _q(
+            "permanent_deformation",
+            "length",
+            "output",
+            True,
+            "residual interference d_r",
+        ),
+    ]
+}
+
+
+class DataError(ValueError):
+    """A problem with an experiment file, naming the file, row and column."""
+
+
+@dataclasses.dataclass(frozen=True)
+class Column:
+    """How a CSV column maps to a quantity (``factor`` converts to SI)."""
+
+    header: str
+    quantity: str
+    unit: str
+    factor: float
+    is_sigma: bool
+
+
+def parse_column(header: str, where: str = "") -> Column:
+    """Split a column name into quantity and unit; raise naming the column."""
+    name = header.strip()
+    is_sigma = name.startswith("sigma_")
+    base = name[len("sigma_") :] if is_sigma else name
+    if base in QUANTITIES:
+        quantity, unit = base, ""
+    else:
+        quantity, unit = None, None
+        # The longest quantity name that prefixes the column wins, so that
+        # "rebound_velocity_m_s" is (rebound_velocity, m_s).
+        for q in sorted(QUANTITIES, key=len, reverse=True):
+            if base.startswith(q + "_"):
+                quantity, unit = q, base[len(q) + 1 :].lower()
+                break
+        if quantity is None:
+            known = ", ".join(sorted(QUANTITIES))
+            raise DataError(
+                f"{where}unknown column {header!r}: expected 'scene', a quantity "
+                f"with its unit ('<quantity>_<unit>', quantities: {known}) or "
+                "'sigma_' followed by a measured column"
+            )
+    dim = QUANTITIES[quantity].dimension
+    if dim == "dimensionless":
+        if unit:
+            raise DataError(
+                f"{where}column {header!r}: {quantity!r} is dimensionless and "
+                "takes no unit suffix"
+            )
+        return Column(header, quantity, "", 1.0, is_sigma)
+    if not unit:
+        raise DataError(
+            f"{where}column {header!r} has no unit: write it as "
+            f"'{quantity}_<unit>' with a {dim} unit ({_units_of(dim)})"
+        )
+    if unit not in UNITS or UNITS[unit][0] != dim:
+        raise DataError(
+            f"{where}column {header!r}: unit {unit!r} does not fit {quantity!r}, "
+            f"a {dim}; expected one of {_units_of(dim)}"
+        )
+    return Column(header, quantity, unit, UNITS[unit][1], is_sigma)
+
+
+def _units_of(dim: str) -> str:
+    return ", ".join(u for u, (d, _) in UNITS.items() if d == dim)
+
+
+@dataclasses.dataclass(frozen=True)
+class ExperimentData:
+    """A validated experiment file, in SI units.
+
+    - `scene`: the scene name from the ``scene`` column (None if absent);
+    - `inputs`: quantity -> array of shape ``(n,)``;
+    - `outputs`: quantity -> array ``(n,)``, NaN where a row did not measure it;
+    - `sigmas`: quantity -> array ``(n,)`` (only where uncertainty columns exist);
+    - `provenance`: the ``#`` lines before the header; `path`: the file.
+    """
+
+    scene: str | None
+    inputs: dict[str, np.ndarray]
+    outputs: dict[str, np.ndarray]
+    sigmas: dict[str, np.ndarray]
+    provenance: str
+    path: str
+    columns: dict[str, Column]
+
+    @property
+    def n(self) -> int:
+        arrays = list(self.inputs.values()) + list(self.outputs.values())
+        return len(arrays[0]) if arrays else 0
+
+
+def load_experiments(path: str | os.PathLike) -> ExperimentData:
+    """Read and validate an experiment CSV (schema in this module's docstring).
+
+    Raises :class:`DataError` (a ``ValueError``) naming the file, the row (the
+    line number in the file) and the column for: an empty file, no header or no
+    rows, an unknown column or unit, a missing required value, a non-number, a
+    negative value of a quantity that cannot be negative, a sigma column without
+    its measured column or with a value <= 0, and a file mixing scenes.
+    """
+    path = os.fspath(path)
+    if not os.path.exists(path):
+        raise DataError(f"{path}: no such file")
+    with open(path, newline="", encoding="utf-8") as fh:
+        lines = fh.read().splitlines()
+    provenance, body_start = [], 0
+    for i, line in enumerate(lines):
+        if line.startswith("#"):
+            provenance.append(line.lstrip("#").strip())
+        elif line.strip():
+            body_start = i
+            break
+    else:
+        raise DataError(f"{path}: the file is empty (no header and no rows)")
+    reader = csv.reader(lines[body_start:])
+    header = next(reader)
+    rows = [(body_start + 2 + k, r) for k, r in enumerate(reader) if any(r)]
+    if not rows:
+        raise DataError(f"{path}: header but no rows of data")
+    if len(set(header)) != len(header):
+        raise DataError(f"{path}: duplicate column names in {header}")
+    columns, scene_idx = {}, None
+    for j, h in enumerate(header):
+        if h.strip() == "scene":
+            scene_idx = j
+            continue
+        columns[j] = parse_column(h, f"{path}: ")
+    # One column per quantity (two units of one quantity would be ambiguous).
+    seen = {}
+    for col in columns.values():
+        key = (col.quantity, col.is_sigma)
+        if key in seen:
+            raise DataError(
+                f"{path}: columns {seen[key]!r} and {col.header!r} both give "
+                f"{'sigma of ' if col.is_sigma else ''}{col.quantity!r}"
+            )
+        seen[key] = col.header
+    measured = {c.quantity for c in columns.values() if not c.is_sigma}
+    for col in columns.values():
+        if col.is_sigma and (
+            col.quantity not in measured or QUANTITIES[col.quantity].role != "output"
+        ):
+            raise DataError(
+                f"{path}: column {col.header!r} gives an uncertainty for "
+                f"{col.quantity!r}, but the file has no measured {col.quantity!r} "
+                "column"
+            )
+    if not any(
+        QUANTITIES[c.quantity].role == "output" and not c.is_sigma
+        for c in columns.values()
+    ):
+        raise DataError(
+            f"{path}: no measured output column (e.g. contact_time_s, cor_normal)"
+        )
+    scenes = set()
+    values = {j: [] for j in columns}
+    for lineno, row in rows:
+        if len(row) != len(header):
+            raise DataError(
+                f"{path}, row {lineno}: {len(row)} fields, expected {len(header)} "
+                f"({', '.join(header)})"
+            )
+        if scene_idx is not None:
+            s = row[scene_idx].strip()
+            if not s:
+                raise DataError(f"{path}, row {lineno}, column 'scene': empty")
+            scenes.add(s)
+        for j, col in columns.items():
+            values[j].append(_cell(row[j], col, path, lineno))
+    if len(scenes) > 1:
+        raise DataError(
+            f"{path}, column 'scene': one scene per file, found {sorted(scenes)}; "
+            "split the file by scene"
+        )
+    inputs, outputs, sigmas = {}, {}, {}
+    for j, col in columns.items():
+        arr = np.asarray(values[j], dtype=np.float64) * col.factor
+        if col.is_sigma:
+            sigmas[col.quantity] = arr
+        elif QUANTITIES[col.quantity].role == "input":
+            inputs[col.quantity] = arr
+        else:
+            outputs[col.quantity] = arr
+    for q, s in sigmas.items():
+        bad = np.isfinite(outputs[q]) & ~(s > 0)
+        if bad.any():
+            k = int(np.argmax(bad))
+            raise DataError(
+                f"{path}, row {rows[k][0]}, column {seen[(q, True)]!r}: an "
+                "uncertainty must be a number > 0 where the output is measured"
+            )
+    return ExperimentData(
+        scene=scenes.pop() if scenes else None,
+        inputs=inputs,
+        outputs=outputs,
+        sigmas=sigmas,
+        provenance="\n".join(provenance),
+        path=path,
+        columns={c.header: c for c in columns.values()},
+    )
+
+
+def _cell(text: str, col: Column, path: str, lineno: int) -> float:
+    where = f"{path}, row {lineno}, column {col.header!r}"
+    text = text.strip()
+    q = QUANTITIES[col.quantity]
+    if not text:
+        if q.role == "output":
+            return math.nan  # not measured in this row
+        raise DataError(f"{where}: empty, but an input needs a value in every row")
+    try:
+        x = float(text)
+    except ValueError:
+        raise DataError(f"{where}: {text!r} is not a number") from None
+    if not math.isfinite(x):
+        raise DataError(f"{where}: {text!r} is not a finite number")
+    if q.nonnegative and x < 0:
+        raise DataError(
+            f"{where}: {text} is negative; {q.name} ({q.doc}) must be >= 0 "
+            f"in {col.unit or _SI[q.dimension]}"
+        )
+    return x
+
+
+def write_experiments(
+    path, columns: dict[str, np.ndarray], *, provenance: str = "", scene=None
+):
+    """Write an experiment CSV in the schema above (refuses to overwrite).
+
+    `columns` maps column names (with units, as in the schema) to arrays in
+    the units of the name.  Used by the synthetic-data script and the tests.
+    """
+    path = os.fspath(path)
+    if os.path.exists(path):
+        raise FileExistsError(f"{path} exists; remove it first or choose another name")
+    for h in columns:
+        parse_column(h, f"{path}: ")
+    n = len(next(iter(columns.values())))
+    with open(path, "w", newline="", encoding="utf-8") as fh:
+        for line in provenance.splitlines():
+            fh.write(f"# {line}\n")
+        w = csv.writer(fh)
+        header = (["scene"] if scene else []) + list(columns)
+        w.writerow(header)
+        for i in range(n):
+            row = [scene] if scene else []
+            row += [_fmt(columns[h][i]) for h in columns]
+            w.writerow(row)
+
+
+def _fmt(x) -> str:
+    x = float(x)
+    return "" if math.isnan(x) else repr(x)

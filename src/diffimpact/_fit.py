@@ -1,0 +1,556 @@
+"""Parameter identification: weighted least squares over an experiment file.
+
+Every row of the file is simulated in one ``jax.vmap``; the residual of
+measured output ``k`` in row ``i`` is ``(predicted - measured) / sigma``, with
+``sigma`` from the file's ``sigma_`` columns or, for an output without one, the
+RMS of that output's measurements (relative residuals, so that a contact time in
+microseconds and a COR of 0.5 weigh alike).  Free parameters are chosen by name
+and mapped to an unconstrained space by :mod:`._transforms` (log by default).
+
+The default optimiser is Levenberg-Marquardt (``optimistix``); ``"adam"`` and
+``"lbfgs"`` (``optax``) minimise half the sum of squares instead, for large or
+stochastic problems.  At the optimum the Jacobian gives the covariance
+``s^2 (J^T J)^-1`` (``s^2 = 1`` when every output has measured uncertainties,
+else the reduced chi-square, as scipy's ``curve_fit`` does), standard errors and
+correlations; a (nearly) rank-deficient Jacobian raises an
+:class:`IdentifiabilityWarning` naming the parameter combination the data cannot
+determine, and the covariance then shows it (huge errors, correlation +-1)
+instead of a confident wrong answer.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+import sys
+import time
+import warnings
+
+import diffrax
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import numpy as np
+import optax
+import optimistix as optx
+
+from ._data import ExperimentData, load_experiments
+from ._observables import (
+    Experiment,
+    check_rows,
+    get_path,
+    getter,
+    predict,
+    resolve_parameter,
+    scene_spec,
+)
+from ._transforms import make_transform
+
+_SOLVERS = ("levenberg-marquardt", "gauss-newton", "adam", "lbfgs")
+# Singular values of the scaled Jacobian below this fraction of the largest
+# mean a direction the data do not determine (well above the ~1e-10 noise of
+# derivatives through solves at rtol 1e-11, well below any real sensitivity).
+_RANK_TOL = 1e-6
+# Where a direction is undetermined, its variance is reported from this floor
+# (so the errors come out huge and the correlation +-1, not infinite or NaN).
+_SV_FLOOR = 1e-9
+_STALL = 4
+
+
+class IdentifiabilityWarning(UserWarning):
+    """The data cannot determine some combination of the free parameters."""
+
+
+@dataclasses.dataclass(frozen=True)
+class FitResult:
+    """The outcome of :func:`fit` (numbers in SI units, numpy arrays).
+
+    - `names`, `values`, `std_errors`, `start`: per free parameter;
+    - `covariance`, `correlation`: ``(p, p)``;
+    - `quantities`: the measured outputs fitted; `measured`, `predicted`,
+      `sigma`, `residuals` (weighted): ``(n_rows, n_quantities)``, NaN where a
+      row did not measure a quantity;
+    - `cost`: half the weighted sum of squares; `chi2_reduced`: ``2 cost / dof``;
+    - `iterations`, `converged`, `solver`, `seconds`;
+    - `singular_values`: of the Jacobian w.r.t. the unconstrained parameters;
+    - `warnings`: identifiability and convergence messages;
+    - `experiment`: the :class:`Experiment` with the fitted values in place.
+    """
+
+    names: tuple[str, ...]
+    values: np.ndarray
+    std_errors: np.ndarray
+    start: np.ndarray
+    covariance: np.ndarray
+    correlation: np.ndarray
+    quantities: tuple[str, ...]
+    inputs: dict
+    measured: np.ndarray
+    predicted: np.ndarray
+    sigma: np.ndarray
+    residuals: np.ndarray
+    cost: float
+    chi2_reduced: float
+    dof: int
+    absolute_sigma: bool
+    iterations: int
+    converged: bool
+    solver: str
+    seconds: float
+    singular_values: np.ndarray
+    warnings: tuple[str, ...]
+    experiment: Experiment
+
+    @property
+    def identifiable(self) -> bool:
+        return not any("cannot determine" in w for w in self.warnings)
+
+    def summary(self) -> str:
+        """A table of estimates with standard errors and the correlations."""
+        w = max(len(n) for n in self.names)
+        lines = [f"{'parameter':<{w}}  {'estimate':>13}  {'std error':>11}  start"]
+        for n, v, s, x0 in zip(
+            self.names, self.values, self.std_errors, self.start, strict=True
+        ):
+            lines.append(f"{n:<{w}}  {v:>13.6g}  {s:>11.3g}  {x0:.6g}")
+        if len(self.names) > 1:
+            lines.append("correlation:")
+            for n, row in zip(self.names, self.correlation, strict=True):
+                lines.append(f"  {n:<{w}}  " + "  ".join(f"{c:+.3f}" for c in row))
+        lines.append(
+            f"{self.solver}: {self.iterations} iterations, "
+            f"{'converged' if self.converged else 'NOT converged'}, cost "
+            f"{self.cost:.4g}, reduced chi^2 {self.chi2_reduced:.4g} "
+            f"(dof {self.dof}), {self.seconds:.1f} s"
+        )
+        lines += [f"warning: {m}" for m in self.warnings]
+        return "\n".join(lines)
+
+    def to_dict(self) -> dict:
+        """A JSON-ready summary (parameters, covariance, fit statistics)."""
+        return {
+            "parameters": {
+                n: {"value": float(v), "std_error": float(s), "start": float(x0)}
+                for n, v, s, x0 in zip(
+                    self.names, self.values, self.std_errors, self.start, strict=True
+                )
+            },
+            "covariance": self.covariance.tolist(),
+            "correlation": self.correlation.tolist(),
+            "quantities": list(self.quantities),
+            "cost": self.cost,
+            "chi2_reduced": self.chi2_reduced,
+            "dof": self.dof,
+            "absolute_sigma": self.absolute_sigma,
+            "iterations": self.iterations,
+            "converged": self.converged,
+            "solver": self.solver,
+            "seconds": self.seconds,
+            "singular_values": self.singular_values.tolist(),
+            "warnings": list(self.warnings),
+        }
+
+
+class _Problem(eqx.Module):
+    """Everything the residual needs, passed as ``args`` (a pytree)."""
+
+    experiment: Experiment
+    inputs: dict
+    measured: jax.Array
+    sigma: jax.Array
+    mask: jax.Array
+    names: tuple[str, ...] = eqx.field(static=True)
+    paths: tuple[str, ...] = eqx.field(static=True)
+    quantities: tuple[str, ...] = eqx.field(static=True)
+    transforms: tuple = eqx.field(static=True)
+
+    def parameters(self, u):
+        return [t.forward(u[i]) for i, t in enumerate(self.transforms)]
+
+    def with_parameters(self, u) -> Experiment:
+        where = [getter(p) for p in self.paths]
+        return eqx.tree_at(
+            lambda e: [g(e) for g in where], self.experiment, self.parameters(u)
+        )
+
+    def predictions(self, u):
+        e = self.with_parameters(u)
+
+        def one(row):
+            out = predict(e, row)
+            return jnp.stack([out[q] for q in self.quantities])
+
+        return jax.vmap(one)(self.inputs)
+
+    def residuals(self, u):
+        pred = self.predictions(u)
+        r = jnp.where(self.mask, (pred - self.measured) / self.sigma, 0.0)
+        return r.ravel()
+
+
+def _residual_fn(u, problem: _Problem):
+    return problem.residuals(u), None
+
+
+def fit(
+    data,
+    experiment: Experiment | str | None = None,
+    free=("mu",),
+    *,
+    start: dict | None = None,
+    bounds: dict | None = None,
+    outputs=None,
+    solver: str = "levenberg-marquardt",
+    max_steps: int = 100,
+    rtol: float = 1e-6,
+    atol: float = 1e-8,
+    learning_rate: float = 0.05,
+    progress: bool = False,
+) -> FitResult:
+    """Fit the free parameters of ``experiment`` to the measurements in ``data``.
+
+    **Arguments:**
+
+    - `data`: a path to an experiment CSV or an :class:`ExperimentData`.
+    - `experiment`: an :class:`Experiment`, a scene name (its defaults), or None
+      (the scene named in the file, with its defaults).
+    - `free`: parameter names (``"mu"``, ``"mu_v"``, ``"yield_strength"``, a law
+      field such as ``"ep_exponent"``, or a dotted path); the rest stay fixed.
+    - `start`: optional start values by name (default: the experiment's values).
+    - `bounds`: optional ``{name: (lower, upper)}``; default ``(0, inf)``.
+    - `outputs`: which measured quantities to fit (default: all in the file).
+    - `solver`: ``"levenberg-marquardt"`` (default), ``"gauss-newton"``,
+      ``"adam"`` or ``"lbfgs"``.
+    - `max_steps`, `rtol`, `atol`: iteration budget and tolerances (on the
+      unconstrained parameters, i.e. relative changes); `learning_rate` for adam.
+    - `progress`: print a progress bar to stderr.
+
+    **Returns:** a :class:`FitResult`.
+    """
+    if solver not in _SOLVERS:
+        raise ValueError(f"`solver` must be one of {_SOLVERS}, got {solver!r}")
+    if isinstance(free, str):
+        free = [f.strip() for f in free.split(",") if f.strip()]
+    free = tuple(free)
+    if not free:
+        raise ValueError("`free` must name at least one parameter")
+    if len(set(free)) != len(free):
+        raise ValueError(f"`free` names a parameter twice: {free}")
+    if not isinstance(data, ExperimentData):
+        data = load_experiments(data)
+    if experiment is None:
+        if data.scene is None:
+            raise ValueError(
+                f"{data.path}: no 'scene' column; pass `experiment` (a scene name "
+                "or an Experiment)"
+            )
+        experiment = data.scene
+    if isinstance(experiment, str):
+        experiment = scene_spec(experiment).default()
+    spec = scene_spec(experiment.scene)
+    if data.scene is not None and scene_spec(data.scene).name != spec.name:
+        raise ValueError(
+            f"{data.path} holds {data.scene!r} impacts, but the experiment's scene "
+            f"is {spec.name!r}"
+        )
+    check_rows(experiment, data.inputs, data.path)
+    # Least squares needs the Jacobian of many residuals w.r.t. a few
+    # parameters: forward mode (one JVP per parameter) is the cheap way, and
+    # diffrax needs ForwardMode to differentiate a solve in forward mode.
+    experiment = dataclasses.replace(
+        experiment,
+        settings=dataclasses.replace(
+            experiment.settings, adjoint=diffrax.ForwardMode()
+        ),
+    )
+
+    start, bounds = dict(start or {}), dict(bounds or {})
+    for d, what in ((start, "start"), (bounds, "bounds")):
+        extra = set(d) - set(free)
+        if extra:
+            raise ValueError(f"`{what}` names parameters that are not free: {extra}")
+    paths = tuple(resolve_parameter(experiment, n) for n in free)
+    x0 = [
+        float(start.get(n, get_path(experiment, p)))
+        for n, p in zip(free, paths, strict=True)
+    ]
+    transforms = tuple(
+        make_transform(n, x, bounds.get(n)) for n, x in zip(free, x0, strict=True)
+    )
+
+    quantities, measured, sigma, mask, absolute = _targets(data, outputs, experiment)
+    problem = _Problem(
+        experiment=experiment,
+        inputs={q: jnp.asarray(v) for q, v in data.inputs.items()},
+        measured=jnp.asarray(np.where(mask, measured, 0.0)),
+        sigma=jnp.asarray(sigma),
+        mask=jnp.asarray(mask),
+        names=free,
+        paths=paths,
+        quantities=quantities,
+        transforms=transforms,
+    )
+    u0 = jnp.zeros(len(free))
+    t0 = time.perf_counter()
+    bar = _Progress(max_steps, solver) if progress else None
+    if solver in ("levenberg-marquardt", "gauss-newton"):
+        u, steps, converged = _least_squares(
+            problem, u0, solver, max_steps, rtol, atol, bar
+        )
+    else:
+        u, steps, converged = _minimise(
+            problem, u0, solver, max_steps, rtol, atol, learning_rate, bar
+        )
+    if bar:
+        bar.close()
+    return _result(
+        problem,
+        data,
+        u,
+        steps,
+        converged,
+        solver,
+        time.perf_counter() - t0,
+        np.asarray(x0),
+        absolute,
+    )
+
+
+def _targets(data: ExperimentData, outputs, experiment):
+    available = [q for q in data.outputs if np.isfinite(data.outputs[q]).any()]
+    if outputs is None:
+        quantities = tuple(available)
+    else:
+        quantities = tuple([outputs] if isinstance(outputs, str) else outputs)
+        missing = [q for q in quantities if q not in available]
+        if missing:
+            raise ValueError(
+                f"{data.path}: no measurements of {missing} (measured: {available})"
+            )
+    # Which quantities the scene predicts, from shapes alone (no solve).
+    inputs0 = {q: v[0] for q, v in data.inputs.items()}
+    predicted = jax.eval_shape(lambda: predict(experiment, inputs0))
+    unknown = [q for q in quantities if q not in predicted]
+    if unknown:
+        raise ValueError(
+            f"{data.path}: scene {scene_spec(experiment.scene).name!r} does not "
+            f"predict {unknown} (it predicts {sorted(predicted)}); drop the "
+            "column(s) or choose the outputs to fit"
+        )
+    measured = np.stack([data.outputs[q] for q in quantities], axis=1)
+    mask = np.isfinite(measured)
+    sigma = np.ones_like(measured)
+    for k, q in enumerate(quantities):
+        if q in data.sigmas:
+            s = data.sigmas[q]
+        else:
+            col = measured[mask[:, k], k]
+            rms = float(np.sqrt(np.mean(col**2)))
+            s = np.full(len(measured), rms if rms > 0 else 1.0)
+        sigma[:, k] = np.where(mask[:, k], s, 1.0)
+    absolute = all(q in data.sigmas for q in quantities)
+    return quantities, measured, sigma, mask, absolute
+
+
+def _least_squares(problem, u0, solver_name, max_steps, rtol, atol, bar):
+    if solver_name == "levenberg-marquardt":
+        solver = optx.LevenbergMarquardt(rtol=rtol, atol=atol)
+    else:
+        solver = optx.GaussNewton(rtol=rtol, atol=atol)
+    fn, options, tags = _residual_fn, {}, frozenset()
+    f_struct, aux_struct = jax.eval_shape(lambda: fn(u0, problem))
+    state = eqx.filter_jit(solver.init)(
+        fn, u0, problem, options, f_struct, aux_struct, tags
+    )
+    # One jitted step at a time (optimistix's init/step/terminate interface)
+    # so that the command line can show progress; the compiled step is reused.
+    step = eqx.filter_jit(solver.step)
+    terminate = eqx.filter_jit(solver.terminate)
+    u, steps, converged = u0, 0, False
+    best, stalled = math.inf, 0
+    while steps < max_steps:
+        done, result = terminate(fn, u, problem, options, state, tags)
+        if bool(done):
+            converged = result == optx.RESULTS.successful
+            break
+        u, state, _ = step(fn, u, problem, options, state, tags)
+        steps += 1
+        r = state.f_info.residual
+        cost = 0.5 * float(jnp.sum(r**2))
+        if bar:
+            bar.update(steps, cost)
+        # At the optimum of a noisy problem the residuals carry the solver's
+        # own noise (~1e-9 relative), so a step's actual decrease can fall below
+        # the model's prediction and LM rejects every further step without
+        # ever meeting its Cauchy test.  A cost that has stopped decreasing for
+        # _STALL steps is stationary: stop there.
+        if cost < best * (1.0 - 1e-10):
+            best, stalled = cost, 0
+        else:
+            stalled += 1
+            if stalled >= _STALL:
+                converged = True
+                break
+    return u, steps, bool(converged)
+
+
+def _minimise(problem, u0, name, max_steps, rtol, atol, learning_rate, bar):
+    def loss(u):
+        r = problem.residuals(u)
+        return 0.5 * jnp.sum(r**2)
+
+    if name == "adam":
+        opt = optax.adam(learning_rate)
+    else:
+        opt = optax.lbfgs()
+    value_and_grad = optax.value_and_grad_from_state(loss)
+
+    @eqx.filter_jit
+    def step(u, state):
+        value, grad = value_and_grad(u, state=state)
+        updates, state = opt.update(
+            grad, state, u, value=value, grad=grad, value_fn=loss
+        )
+        return optax.apply_updates(u, updates), state, value, grad
+
+    state = opt.init(u0)
+    u, steps, converged, last = u0, 0, False, math.inf
+    while steps < max_steps:
+        u_new, state, value, grad = step(u, state)
+        steps += 1
+        value = float(value)
+        if bar:
+            bar.update(steps, value)
+        small_step = float(jnp.max(jnp.abs(u_new - u))) < rtol + atol
+        small_change = abs(last - value) <= rtol * abs(value) + atol
+        u, last = u_new, value
+        if float(jnp.max(jnp.abs(grad))) <= atol or (small_step and small_change):
+            converged = True
+            break
+    return u, steps, converged
+
+
+def _result(problem, data, u, steps, converged, solver, seconds, x0, absolute):
+    names = problem.names
+    x = np.array([float(v) for v in problem.parameters(u)])
+    pred = np.asarray(eqx.filter_jit(problem.predictions)(u))
+    jac_u = np.asarray(eqx.filter_jit(lambda v: jax.jacfwd(problem.residuals)(v))(u))
+    mask = np.asarray(problem.mask)
+    measured = np.where(mask, np.asarray(problem.measured), np.nan)
+    sigma = np.asarray(problem.sigma)
+    resid = np.where(mask, (pred - measured) / sigma, np.nan)
+    cost = 0.5 * float(np.nansum(resid**2))
+    m, p = int(mask.sum()), len(x)
+    dof = m - p
+    notes = []
+    if not np.all(np.isfinite(pred[mask])) or not np.all(np.isfinite(jac_u)):
+        raise FloatingPointError(
+            "the fit reached parameters where the simulation is not finite: "
+            f"{dict(zip(names, x, strict=True))}; narrow the bounds"
+        )
+    # dx/du of each transform, to carry the covariance from u to x.
+    dx_du = np.asarray(
+        [
+            jax.grad(lambda v, t=t: t.forward(v))(float(u[i]))
+            for i, t in enumerate(problem.transforms)
+        ]
+    )
+    _, s, vt = np.linalg.svd(jac_u, full_matrices=False)
+    s_max = s[0] if s.size and s[0] > 0 else 1.0
+    weak = s < _RANK_TOL * s_max
+    if weak.any():
+        for k in np.nonzero(weak)[0]:
+            combo = " ".join(
+                f"{c:+.2f}*log({n})"
+                if problem.transforms[i].kind == "log"
+                else f"{c:+.2f}*{n}"
+                for i, (c, n) in enumerate(zip(vt[k], names, strict=True))
+                if abs(c) > 0.05
+            )
+            notes.append(
+                "the data cannot determine the combination "
+                f"[{combo}] (Jacobian singular-value ratio {s[k] / s_max:.1e}); "
+                "fix one of these parameters or add measurements sensitive to it"
+            )
+    s_eff = np.maximum(s, _SV_FLOOR * s_max)
+    cov_u = (vt.T / s_eff**2) @ vt
+    if absolute:
+        scale = 1.0
+    elif dof > 0:
+        scale = 2.0 * cost / dof
+    else:
+        scale = math.inf
+        notes.append(
+            f"{m} measurements for {p} parameters: no degrees of freedom left to "
+            "estimate the noise, so the standard errors are unknown (inf); add "
+            "sigma_ columns or more rows"
+        )
+    cov = (
+        scale * cov_u * np.outer(dx_du, dx_du)
+        if math.isfinite(scale)
+        else (np.full((p, p), math.inf))
+    )
+    se = np.sqrt(np.diag(cov)) if math.isfinite(scale) else np.full(p, math.inf)
+    d = np.sqrt(np.diag(cov_u))
+    corr = cov_u / np.outer(d, d)
+    for i in range(p):
+        for j in range(i + 1, p):
+            if abs(corr[i, j]) > 0.99 and not weak.any():
+                notes.append(
+                    f"{names[i]} and {names[j]} are strongly correlated "
+                    f"({corr[i, j]:+.3f}): the data barely separate them"
+                )
+    if not converged:
+        notes.append(
+            f"{solver} did not converge in {steps} iterations; raise max_steps or "
+            "start closer"
+        )
+    for msg in notes:
+        if "cannot determine" in msg or "correlated" in msg:
+            warnings.warn(msg, IdentifiabilityWarning, stacklevel=3)
+    return FitResult(
+        names=names,
+        values=x,
+        std_errors=se,
+        start=x0,
+        covariance=cov,
+        correlation=corr,
+        quantities=problem.quantities,
+        inputs={k: np.asarray(v) for k, v in data.inputs.items()},
+        measured=measured,
+        predicted=np.where(mask, pred, np.nan),
+        sigma=sigma,
+        residuals=resid,
+        cost=cost,
+        chi2_reduced=2.0 * cost / dof if dof > 0 else math.nan,
+        dof=dof,
+        absolute_sigma=absolute,
+        iterations=steps,
+        converged=converged,
+        solver=solver,
+        seconds=seconds,
+        singular_values=s,
+        warnings=tuple(notes),
+        experiment=problem.with_parameters(u),
+    )
+
+
+class _Progress:
+    """A one-line text progress bar on stderr (no extra dependency)."""
+
+    def __init__(self, total, label, width=30):
+        self.total, self.label, self.width = total, label, width
+        self.t0 = time.perf_counter()
+
+    def update(self, k, cost):
+        filled = int(self.width * min(k, self.total) / self.total)
+        bar = "#" * filled + "." * (self.width - filled)
+        dt = time.perf_counter() - self.t0
+        sys.stderr.write(
+            f"\r{self.label} [{bar}] step {k}/{self.total} cost {cost:.4g} ({dt:.1f} s)"
+        )
+        sys.stderr.flush()
+
+    def close(self):
+        sys.stderr.write("\n")
+        sys.stderr.flush()

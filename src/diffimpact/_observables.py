@@ -1,0 +1,259 @@
+"""From a simulated impact to what an experimenter measures.
+
+An :class:`Experiment` is the model behind one experiment file: a template
+scene (its fields are the defaults; each CSV row replaces the inputs it gives),
+a normal law, optional friction, and how to solve.  :func:`predict` maps one
+row of inputs to the measured quantities of :data:`diffimpact._data.QUANTITIES`.
+
+The scene registry says, per scene, which CSV inputs set which scene fields,
+which inputs every row must give, and the short parameter names a user fits
+(``yield_strength``, ``mu``, ...), each a path into the :class:`Experiment`.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from collections.abc import Callable
+
+import equinox as eqx
+import jax.numpy as jnp
+
+from ._laws._base import AbstractNormalLaw
+from ._laws._friction import Friction
+from ._laws._jackson_green import JacksonGreen
+from ._materials import Material
+from ._simulate import simulate
+from ._solver import SolverSettings
+from .scenes._base import AbstractScene
+from .scenes._normal import NormalImpact
+from .scenes._planar import SphereOnIncline
+
+
+class Experiment(eqx.Module):
+    """The model of an experiment: scene template, law, friction, solver.
+
+    **Arguments:** `scene` (its numbers are defaults, replaced row by row by the
+    inputs of a data file), `law`, `friction` (None = frictionless), `method`
+    and `settings` for :func:`diffimpact.simulate`.
+    """
+
+    scene: AbstractScene
+    law: AbstractNormalLaw
+    friction: Friction | None = None
+    method: str = eqx.field(static=True, default="smooth")
+    settings: SolverSettings = eqx.field(
+        static=True, default=SolverSettings(max_steps=16384)
+    )
+
+    @staticmethod
+    def default(scene: str) -> Experiment:
+        """The built-in experiment of a scene name (e.g. ``"sphere_on_incline"``:
+        data.md A's ball and prism, Jackson-Green law, friction ``mu = 0.2``)."""
+        return scene_spec(scene).default()
+
+
+@dataclasses.dataclass(frozen=True)
+class SceneSpec:
+    """How a scene meets the data: CSV inputs -> scene fields, defaults, names."""
+
+    name: str
+    cls: type
+    inputs: dict[str, str]  # quantity -> scene field name
+    required: tuple[str, ...]
+    default: Callable[[], Experiment]
+    parameters: dict[str, str]  # short name -> dotted path in Experiment
+    tangential_before: Callable | None = None  # CM tangential velocity before
+
+
+# Ball-prism defaults (data.md A): bearing-steel ball, 19 mm diameter, on an
+# as-delivered OLC-45 (C45) prism.  The paper gives no material data: E, nu of
+# both from data.md A's ranges; S_y of the prism a mid-range start value.
+_BALL_RADIUS = 9.5e-3
+_STEEL_DENSITY = 7850.0
+_BALL = Material(208e9, 0.3, math.inf, _STEEL_DENSITY)
+_PRISM = Material(207e9, 0.29, 400e6, _STEEL_DENSITY)
+_BALL_MASS = 4.0 / 3.0 * math.pi * _BALL_RADIUS**3 * _STEEL_DENSITY
+
+
+def _sphere_on_incline() -> Experiment:
+    scene = SphereOnIncline(
+        _BALL_MASS, _BALL_RADIUS, _BALL, _PRISM, math.radians(30.0), 0.29
+    )
+    return Experiment(scene, JacksonGreen(), Friction(0.2, 0.0))
+
+
+def _normal_impact() -> Experiment:
+    scene = NormalImpact(_BALL_MASS, _BALL_RADIUS, _BALL, _PRISM, 1.0)
+    return Experiment(scene, JacksonGreen(), None, method="quadrature")
+
+
+_PLATE = {
+    "yield_strength": "scene.flat.yield_strength",
+    "youngs_modulus": "scene.flat.youngs_modulus",
+    "poisson_ratio": "scene.flat.poisson_ratio",
+    "mu": "friction.mu",
+    "mu_v": "friction.mu_v",
+    "mass": "scene.mass",
+    "radius": "scene.radius",
+}
+
+SCENES: dict[str, SceneSpec] = {
+    "sphere_on_incline": SceneSpec(
+        name="sphere_on_incline",
+        cls=SphereOnIncline,
+        inputs={
+            "drop_height": "height",
+            "angle": "angle",
+            "mass": "mass",
+            "radius": "radius",
+        },
+        required=("drop_height", "angle"),
+        default=_sphere_on_incline,
+        parameters=_PLATE,
+        tangential_before=lambda s: s.impact_speed * jnp.sin(s.angle),
+    ),
+    "normal_impact": SceneSpec(
+        name="normal_impact",
+        cls=NormalImpact,
+        inputs={"impact_velocity": "velocity", "mass": "mass", "radius": "radius"},
+        required=("impact_velocity",),
+        default=_normal_impact,
+        parameters={k: v for k, v in _PLATE.items() if not k.startswith("mu")},
+    ),
+}
+
+
+def scene_spec(scene) -> SceneSpec:
+    """The registry entry for a scene name or a scene instance."""
+    if isinstance(scene, str):
+        key = scene.strip().lower().replace("-", "_")
+        if key not in SCENES:
+            raise ValueError(
+                f"unknown scene {scene!r}: expected one of {sorted(SCENES)}"
+            )
+        return SCENES[key]
+    for spec in SCENES.values():
+        if type(scene) is spec.cls:
+            return spec
+    raise ValueError(
+        f"scene type {type(scene).__name__} has no data mapping; "
+        f"supported: {sorted(SCENES)}"
+    )
+
+
+def resolve_parameter(experiment: Experiment, name: str) -> str:
+    """The dotted path of a free-parameter name, or a ValueError listing names.
+
+    Accepted: the scene's short names (``yield_strength`` = the flat's, the
+    body that yields; ``mu``, ``mu_v``, ...), any numeric field of the law by
+    its name (``ep_exponent``, ``dr_a``, ...), or a dotted path from the
+    experiment (``scene.body.youngs_modulus``, ``law.c_a``, ``friction.mu``).
+    """
+    spec = scene_spec(experiment.scene)
+    if name in spec.parameters:
+        path = spec.parameters[name]
+    elif name in _array_fields(experiment.law):
+        path = f"law.{name}"
+    else:
+        path = name
+    try:
+        value = get_path(experiment, path)
+    except AttributeError:
+        value = None
+    if value is None or not eqx.is_inexact_array(value):
+        known = sorted(spec.parameters) + sorted(_array_fields(experiment.law))
+        extra = (
+            " (the experiment has no friction)" if path.startswith("friction") else ""
+        )
+        raise ValueError(
+            f"unknown parameter {name!r}{extra}: expected one of {known}, or a "
+            "dotted path such as 'scene.body.youngs_modulus'"
+        )
+    return path
+
+
+def _array_fields(module) -> list[str]:
+    return [
+        f.name
+        for f in dataclasses.fields(module)
+        if eqx.is_inexact_array(getattr(module, f.name))
+    ]
+
+
+def get_path(obj, path: str):
+    for part in path.split("."):
+        obj = getattr(obj, part)
+    return obj
+
+
+def getter(path: str):
+    return lambda obj: get_path(obj, path)
+
+
+def with_inputs(experiment: Experiment, inputs: dict) -> Experiment:
+    """Replace the scene fields that one row's ``inputs`` (SI) give.
+
+    ``eqx.tree_at`` does not re-run the scene's checks, so callers validate the
+    concrete rows first (:func:`check_rows`)."""
+    spec = scene_spec(experiment.scene)
+    names = [q for q in inputs if q in spec.inputs]
+    if not names:
+        return experiment
+    where = [getter("scene." + spec.inputs[q]) for q in names]
+    return eqx.tree_at(
+        lambda e: [w(e) for w in where], experiment, [inputs[q] for q in names]
+    )
+
+
+def check_rows(experiment: Experiment, inputs: dict, path: str = "data") -> None:
+    """Validate every row's scene eagerly (before any solve) with the scene's own
+    checks; raise a ValueError naming the row and the scene's message."""
+    spec = scene_spec(experiment.scene)
+    unknown = [q for q in inputs if q not in spec.inputs]
+    if unknown:
+        raise ValueError(
+            f"{path}: input column(s) {unknown} do not apply to scene "
+            f"{spec.name!r} (its inputs: {sorted(spec.inputs)})"
+        )
+    missing = [q for q in spec.required if q not in inputs]
+    if missing:
+        raise ValueError(
+            f"{path}: scene {spec.name!r} needs input column(s) {missing} "
+            "(with units, e.g. 'drop_height_m', 'angle_deg')"
+        )
+    n = len(next(iter(inputs.values())))
+    for i in range(n):
+        fields = {spec.inputs[q]: float(v[i]) for q, v in inputs.items()}
+        try:
+            dataclasses.replace(experiment.scene, **fields)
+        except ValueError as err:
+            raise ValueError(f"{path}, data row {i + 1}: {err}") from None
+
+
+def predict(experiment: Experiment, inputs: dict | None = None) -> dict:
+    """Simulate one impact and return every measurable quantity it gives (SI).
+
+    Keys follow :data:`diffimpact._data.QUANTITIES`; ``cor_tangential`` is the
+    centre-of-mass tangential velocity after over before (data.md A).
+    """
+    e = with_inputs(experiment, inputs or {})
+    r = simulate(e.scene, e.law, e.method, friction=e.friction, settings=e.settings)
+    out = {
+        "contact_time": r.contact_time,
+        "rebound_velocity": r.rebound_velocity,
+        "cor_normal": r.cor_newton,
+        "max_force": r.max_force,
+        "max_deflection": r.max_deflection,
+        "permanent_deformation": r.permanent_deformation,
+    }
+    if "tangential_velocity_after" in r.extras:
+        out["tangential_velocity"] = r.extras["tangential_velocity_after"]
+    if "angular_velocity_after" in r.extras:
+        out["angular_velocity"] = r.extras["angular_velocity_after"]
+    spec = scene_spec(e.scene)
+    if spec.tangential_before is not None and "tangential_velocity" in out:
+        out["cor_tangential"] = out["tangential_velocity"] / spec.tangential_before(
+            e.scene
+        )
+    return out

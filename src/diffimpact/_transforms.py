@@ -1,0 +1,82 @@
+"""Bounds as transforms: the optimiser works on an unconstrained ``u``.
+
+- ``(0, inf)`` (the default for every physical parameter here): ``x = x0 exp(u)``,
+  so ``u`` is the log-change from the start and every parameter moves on the
+  same relative scale, whatever its unit (a yield strength of 4e8 Pa next to a
+  friction coefficient of 0.2);
+- ``(lo, inf)``: ``x = lo + s softplus(u)``; ``(-inf, hi)``: mirrored;
+- ``(lo, hi)``: ``x = lo + (hi - lo) sigmoid(u)``;
+- ``(-inf, inf)``: ``x = x0 + s u``;
+
+with ``s`` the scale of the start value, so that ``u`` is O(1).
+"""
+
+from __future__ import annotations
+
+import math
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+
+
+class Transform(eqx.Module):
+    lower: float = eqx.field(static=True)
+    upper: float = eqx.field(static=True)
+    start: float = eqx.field(static=True)
+    scale: float = eqx.field(static=True)
+
+    @property
+    def kind(self) -> str:
+        lo, hi = self.lower, self.upper
+        if lo == 0.0 and hi == math.inf:
+            return "log"
+        if math.isfinite(lo) and math.isfinite(hi):
+            return "sigmoid"
+        if math.isfinite(lo) or math.isfinite(hi):
+            return "softplus"
+        return "affine"
+
+    def forward(self, u):
+        """Unconstrained ``u`` -> parameter ``x``."""
+        lo, hi, x0, s = self.lower, self.upper, self.start, self.scale
+        kind = self.kind
+        if kind == "log":
+            return x0 * jnp.exp(u)
+        if kind == "sigmoid":
+            return lo + (hi - lo) * jax.nn.sigmoid(u)
+        if kind == "softplus":
+            return (
+                lo + s * jax.nn.softplus(u)
+                if math.isfinite(lo)
+                else (hi - s * jax.nn.softplus(u))
+            )
+        return x0 + s * u
+
+    def inverse(self, x: float) -> float:
+        lo, hi, x0, s = self.lower, self.upper, self.start, self.scale
+        kind = self.kind
+        if kind == "log":
+            return math.log(x / x0)
+        if kind == "sigmoid":
+            p = (x - lo) / (hi - lo)
+            return math.log(p / (1.0 - p))
+        if kind == "softplus":
+            z = (x - lo) / s if math.isfinite(lo) else (hi - x) / s
+            return z + math.log(-math.expm1(-z))  # inverse softplus
+        return (x - x0) / s
+
+
+def make_transform(name: str, start: float, bounds) -> Transform:
+    """A transform for parameter ``name`` starting at ``start`` within ``bounds``
+    (default ``(0, inf)``); raise naming the parameter if the start is outside."""
+    lo, hi = (0.0, math.inf) if bounds is None else (float(b) for b in bounds)
+    if not lo < hi:
+        raise ValueError(f"bounds of {name!r} must satisfy lower < upper, got {bounds}")
+    if not (math.isfinite(start) and lo < start < hi):
+        raise ValueError(
+            f"the start value of {name!r} ({start!r}) must lie strictly inside its "
+            f"bounds ({lo}, {hi}); pass a start value or wider bounds"
+        )
+    scale = abs(start) if start != 0.0 else 1.0
+    return Transform(lo, hi, start, scale)
