@@ -184,6 +184,10 @@ def main(argv=None) -> int:
         )
     s.set_defaults(func=simulate_cmd)
 
+    from . import _cli_fit
+
+    _cli_fit.register(sub)
+
     args = parser.parse_args(argv)
     try:
         return args.func(args)

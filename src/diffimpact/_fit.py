@@ -254,15 +254,6 @@ def fit(
             f"is {spec.name!r}"
         )
     check_rows(experiment, data.inputs, data.path)
-    # Least squares needs the Jacobian of many residuals w.r.t. a few
-    # parameters: forward mode (one JVP per parameter) is the cheap way, and
-    # diffrax needs ForwardMode to differentiate a solve in forward mode.
-    experiment = dataclasses.replace(
-        experiment,
-        settings=dataclasses.replace(
-            experiment.settings, adjoint=diffrax.ForwardMode()
-        ),
-    )
 
     start, bounds = dict(start or {}), dict(bounds or {})
     for d, what in ((start, "start"), (bounds, "bounds")):
@@ -291,11 +282,16 @@ def fit(
         transforms=transforms,
     )
     u0 = jnp.zeros(len(free))
+    # Least squares needs the Jacobian of many residuals w.r.t. a few
+    # parameters: forward mode (one JVP per parameter) is the cheap way, and
+    # diffrax differentiates a solve in forward mode only with ForwardMode.
+    # The optax minimisers take gradients of a scalar loss: reverse mode.
+    forward = _with_adjoint(problem, diffrax.ForwardMode())
     t0 = time.perf_counter()
     bar = _Progress(max_steps, solver) if progress else None
     if solver in ("levenberg-marquardt", "gauss-newton"):
         u, steps, converged = _least_squares(
-            problem, u0, solver, max_steps, rtol, atol, bar
+            forward, u0, solver, max_steps, rtol, atol, bar
         )
     else:
         u, steps, converged = _minimise(
@@ -304,7 +300,7 @@ def fit(
     if bar:
         bar.close()
     return _result(
-        problem,
+        forward,
         data,
         u,
         steps,
@@ -313,6 +309,14 @@ def fit(
         time.perf_counter() - t0,
         np.asarray(x0),
         absolute,
+    )
+
+
+def _with_adjoint(problem: _Problem, adjoint) -> _Problem:
+    e = problem.experiment
+    settings = dataclasses.replace(e.settings, adjoint=adjoint)
+    return dataclasses.replace(
+        problem, experiment=dataclasses.replace(e, settings=settings)
     )
 
 
@@ -401,13 +405,17 @@ def _minimise(problem, u0, name, max_steps, rtol, atol, learning_rate, bar):
 
     if name == "adam":
         opt = optax.adam(learning_rate)
+        value_and_grad = jax.value_and_grad(loss)
     else:
         opt = optax.lbfgs()
-    value_and_grad = optax.value_and_grad_from_state(loss)
+        grad_fn = optax.value_and_grad_from_state(loss)
 
     @eqx.filter_jit
     def step(u, state):
-        value, grad = value_and_grad(u, state=state)
+        if name == "adam":
+            value, grad = value_and_grad(u)
+        else:
+            value, grad = grad_fn(u, state=state)
         updates, state = opt.update(
             grad, state, u, value=value, grad=grad, value_fn=loss
         )
@@ -491,6 +499,13 @@ def _result(problem, data, u, steps, converged, solver, seconds, x0, absolute):
         else (np.full((p, p), math.inf))
     )
     se = np.sqrt(np.diag(cov)) if math.isfinite(scale) else np.full(p, math.inf)
+    # A parameter in an undetermined direction has no finite error, whatever
+    # the noise (with exact data the residual scale alone would make it look
+    # certain); its correlations still come from the floored singular values.
+    involved = np.any(np.abs(vt[weak]) > 0.05, axis=0) if weak.any() else []
+    for i in np.nonzero(involved)[0]:
+        se[i] = math.inf
+        cov[i, :] = cov[:, i] = math.inf
     d = np.sqrt(np.diag(cov_u))
     corr = cov_u / np.outer(d, d)
     for i in range(p):

@@ -173,6 +173,30 @@ def resolve_parameter(experiment: Experiment, name: str) -> str:
     return path
 
 
+def set_parameters(experiment: Experiment, values: dict) -> Experiment:
+    """Return ``experiment`` with parameters set by name (names as in
+    :func:`resolve_parameter`); values in SI units."""
+    if not values:
+        return experiment
+    paths = [resolve_parameter(experiment, n) for n in values]
+    new = eqx.tree_at(
+        lambda e: [get_path(e, p) for p in paths],
+        experiment,
+        [
+            jnp.asarray(v, dtype=get_path(experiment, p).dtype)
+            for p, v in zip(paths, values.values(), strict=True)
+        ],
+    )
+    # tree_at skips the modules' checks: run them on the concrete values.
+    for p in paths:
+        owner = get_path(new, p.rpartition(".")[0]) if "." in p else new
+        try:
+            dataclasses.replace(owner)
+        except ValueError as err:
+            raise ValueError(f"parameter {p!r}: {err}") from None
+    return new
+
+
 def _array_fields(module) -> list[str]:
     return [
         f.name

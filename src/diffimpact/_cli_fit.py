@@ -1,0 +1,237 @@
+"""``diffimpact fit``: identify parameters from an experiment CSV.
+
+    diffimpact fit DATA.csv --free mu,yield_strength [--scene NAME] [--out DIR]
+
+prints the estimates with standard errors and correlations (a progress bar
+while it works) and writes, into DIR: ``fit.json`` (parameters, covariance,
+statistics), ``residuals.csv`` (measured, predicted, weighted residual per row
+and output), ``fit.png`` (measured vs predicted, residuals) and ``loop.png``
+(normal force against interference for the median row).  Nothing in DIR is
+overwritten without ``--force``; the check happens before the fit starts.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+
+_OUTPUT_FILES = ("fit.json", "residuals.csv", "fit.png", "loop.png")
+_LAWS = {"jackson-green": "JacksonGreen", "hertz": "Hertz"}
+
+
+def register(sub) -> None:
+    p = sub.add_parser(
+        "fit",
+        help="fit parameters to an experiment CSV",
+        description=__doc__.split("\n\n")[0],
+    )
+    p.add_argument("data", help="experiment CSV (schema: README, 'CSV format')")
+    p.add_argument(
+        "--free",
+        required=True,
+        help="comma-separated parameters to fit, e.g. mu,yield_strength",
+    )
+    p.add_argument(
+        "--scene", default=None, help="scene name if the file has no 'scene' column"
+    )
+    p.add_argument("--law", choices=sorted(_LAWS), default="jackson-green")
+    p.add_argument(
+        "--set",
+        action="append",
+        default=[],
+        metavar="NAME=VALUE",
+        help="fix a parameter to a value (SI), e.g. youngs_modulus=210e9",
+    )
+    p.add_argument(
+        "--start", action="append", default=[], metavar="NAME=VALUE", help="start"
+    )
+    p.add_argument(
+        "--bounds",
+        action="append",
+        default=[],
+        metavar="NAME=LO:HI",
+        help="bounds of a free parameter (default 0:inf)",
+    )
+    p.add_argument(
+        "--solver",
+        choices=("levenberg-marquardt", "gauss-newton", "adam", "lbfgs"),
+        default="levenberg-marquardt",
+    )
+    p.add_argument("--max-steps", type=int, default=100)
+    p.add_argument("--out", default=None, help="output folder (default fit-<data>)")
+    p.add_argument("--force", action="store_true", help="overwrite outputs in --out")
+    p.add_argument("--no-progress", action="store_true", help="no progress bar")
+    p.set_defaults(func=run)
+
+
+def _pairs(items, what):
+    out = {}
+    for item in items:
+        name, sep, value = item.partition("=")
+        if not sep or not name.strip():
+            raise ValueError(f"--{what} expects NAME=VALUE, got {item!r}")
+        out[name.strip()] = value.strip()
+    return out
+
+
+def _number(text, what):
+    try:
+        return float(text)
+    except ValueError:
+        raise ValueError(f"--{what}: {text!r} is not a number") from None
+
+
+def run(args) -> int:
+    import diffimpact as di
+    from diffimpact._observables import set_parameters
+
+    out = args.out or "fit-" + os.path.splitext(os.path.basename(args.data))[0]
+    existing = [f for f in _OUTPUT_FILES if os.path.exists(os.path.join(out, f))]
+    if existing and not args.force:
+        raise ValueError(
+            f"{out}: would overwrite {', '.join(existing)}; pass --force or choose "
+            "another --out"
+        )
+    data = di.load_experiments(args.data)
+    scene = args.scene or data.scene
+    if scene is None:
+        raise ValueError(f"{args.data}: no 'scene' column; pass --scene")
+    experiment = di.Experiment.default(scene)
+    if args.law != "jackson-green":
+        experiment = experiment.__class__(
+            experiment.scene,
+            getattr(di, _LAWS[args.law])(),
+            experiment.friction,
+            experiment.method,
+            experiment.settings,
+        )
+    fixed = {k: _number(v, "set") for k, v in _pairs(args.set, "set").items()}
+    experiment = set_parameters(experiment, fixed)
+    start = {k: _number(v, "start") for k, v in _pairs(args.start, "start").items()}
+    bounds = {}
+    for k, v in _pairs(args.bounds, "bounds").items():
+        lo, sep, hi = v.partition(":")
+        if not sep:
+            raise ValueError(f"--bounds expects NAME=LO:HI, got {k}={v}")
+        bounds[k] = (_number(lo, "bounds"), _number(hi, "bounds"))
+    print(f"fitting {args.free} to {data.n} rows of {args.data} ({scene})")
+    result = di.fit(
+        data,
+        experiment,
+        args.free,
+        start=start,
+        bounds=bounds,
+        solver=args.solver,
+        max_steps=args.max_steps,
+        progress=not args.no_progress,
+    )
+    print(result.summary())
+    os.makedirs(out, exist_ok=True)
+    with open(os.path.join(out, "fit.json"), "w", encoding="utf-8") as fh:
+        json.dump(
+            {"data": os.path.abspath(args.data), "scene": scene, **result.to_dict()},
+            fh,
+            indent=2,
+        )
+    write_residuals(result, os.path.join(out, "residuals.csv"))
+    plot_fit(result, os.path.join(out, "fit.png"))
+    note = plot_loop(result, os.path.join(out, "loop.png"))
+    print(f"wrote {out}/: {', '.join(_OUTPUT_FILES)}" + (f" ({note})" if note else ""))
+    return 0
+
+
+def write_residuals(result, path) -> None:
+    import csv
+
+    with open(path, "w", newline="", encoding="utf-8") as fh:
+        w = csv.writer(fh)
+        w.writerow(
+            ["row", *result.inputs, "quantity", "measured_si", "predicted_si"]
+            + ["sigma_si", "weighted_residual"]
+        )
+        for i in range(result.measured.shape[0]):
+            for k, q in enumerate(result.quantities):
+                if result.measured[i, k] != result.measured[i, k]:  # NaN: no data
+                    continue
+                w.writerow(
+                    [i + 1, *(repr(float(v[i])) for v in result.inputs.values()), q]
+                    + [
+                        repr(float(result.measured[i, k])),
+                        repr(float(result.predicted[i, k])),
+                        repr(float(result.sigma[i, k])),
+                        repr(float(result.residuals[i, k])),
+                    ]
+                )
+
+
+def plot_fit(result, path) -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    import numpy as np
+
+    nq = len(result.quantities)
+    fig, axes = plt.subplots(2, nq, figsize=(3.6 * nq, 6.4), squeeze=False)
+    rows = np.arange(1, result.measured.shape[0] + 1)
+    for k, q in enumerate(result.quantities):
+        m, p = result.measured[:, k], result.predicted[:, k]
+        ax = axes[0, k]
+        ax.errorbar(m, p, xerr=result.sigma[:, k], fmt="o", ms=4, lw=0.8)
+        lo, hi = np.nanmin([m, p]), np.nanmax([m, p])
+        ax.plot([lo, hi], [lo, hi], "k--", lw=0.8)
+        ax.set(title=q, xlabel="measured (SI)", ylabel="predicted (SI)")
+        ax = axes[1, k]
+        ax.axhline(0.0, color="k", lw=0.8)
+        ax.plot(rows, result.residuals[:, k], "o", ms=4)
+        ax.set(xlabel="row", ylabel="(predicted - measured) / sigma")
+    fig.suptitle(
+        ", ".join(
+            f"{n} = {v:.4g} ± {s:.2g}"
+            for n, v, s in zip(
+                result.names, result.values, result.std_errors, strict=True
+            )
+        ),
+        fontsize=9,
+    )
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
+def plot_loop(result, path) -> str:
+    """Normal force against interference for the median row (the normal problem
+    of the scene, which is exact for scenes whose normal motion decouples)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    import numpy as np
+
+    import diffimpact as di
+    from diffimpact._observables import with_inputs
+
+    n = result.measured.shape[0]
+    i = n // 2
+    row = {q: float(v[i]) for q, v in result.inputs.items()}
+    e = with_inputs(result.experiment, row)
+    fig, ax = plt.subplots(figsize=(5, 3.8))
+    note = ""
+    try:
+        r = di.simulate(e.scene, e.law, "smooth", n_history=400)
+        h = r.history
+        ax.plot(np.asarray(h.deflection) * 1e6, np.asarray(h.force), lw=1.2)
+    except (ValueError, TypeError) as err:  # a scene with no normal history
+        note = f"no force-deflection loop: {err}"
+        ax.text(0.5, 0.5, note, ha="center", wrap=True, transform=ax.transAxes)
+    label = ", ".join(f"{q} = {v:.4g}" for q, v in row.items())
+    ax.set(
+        xlabel="interference d [um]",
+        ylabel="normal force [N]",
+        title=f"row {i + 1}: {label} (SI)",
+    )
+    ax.title.set_fontsize(8)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return note
