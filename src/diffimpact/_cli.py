@@ -127,6 +127,9 @@ def demo(args) -> int:
 def simulate_cmd(args) -> int:
     import diffimpact as di
 
+    if args.scene != "normal_impact" or args.input or args.set:
+        return _simulate_scene(args)
+
     body = di.Material(args.body_modulus, args.body_poisson, args.body_yield)
     flat = di.Material(args.flat_modulus, args.flat_poisson, args.flat_yield)
     mass = args.mass
@@ -144,6 +147,34 @@ def simulate_cmd(args) -> int:
     return 0
 
 
+def _simulate_scene(args) -> int:
+    """One impact of a registered scene, inputs given as CSV-style columns."""
+    import diffimpact as di
+    from diffimpact._cli_fit import _number, _pairs
+    from diffimpact._data import parse_column
+    from diffimpact._observables import check_rows, scene_spec, set_parameters
+
+    experiment = di.Experiment.default(args.scene)
+    fixed = {k: _number(v, "set") for k, v in _pairs(args.set, "set").items()}
+    experiment = set_parameters(experiment, fixed)
+    inputs = {}
+    for header, value in _pairs(args.input, "input").items():
+        col = parse_column(header, "--input: ")
+        inputs[col.quantity] = _number(value, "input") * col.factor
+    if args.scene == "normal_impact" and "impact_velocity" not in inputs:
+        inputs["impact_velocity"] = args.velocity
+    spec = scene_spec(args.scene)
+    for q in spec.required:  # inputs not given keep the scene's defaults
+        if q not in inputs:
+            inputs[q] = float(getattr(experiment.scene, spec.inputs[q]))
+    check_rows(experiment, {q: [v] for q, v in inputs.items()}, "--input")
+    out = di.predict(experiment, inputs)
+    print(f"{args.scene}: " + ", ".join(f"{q} = {v:g}" for q, v in inputs.items()))
+    rows = [[q, f"{float(v):.8g}"] for q, v in out.items()]
+    print(_table(rows, ["output (SI)", "value"]))
+    return 0
+
+
 def main(argv=None) -> int:
     parser = argparse.ArgumentParser(
         prog="diffimpact", description="Differentiable impact simulation in JAX."
@@ -157,7 +188,28 @@ def main(argv=None) -> int:
 
     s = sub.add_parser("simulate", help="one normal impact of a sphere on a flat")
     s.add_argument(
-        "--velocity", type=float, required=True, help="approach speed [m/s] (> 0)"
+        "--scene",
+        choices=("normal_impact", "sphere_on_incline"),
+        default="normal_impact",
+        help="scene (other than normal_impact: its built-in defaults, changed "
+        "with --input and --set)",
+    )
+    s.add_argument(
+        "--input",
+        action="append",
+        default=[],
+        metavar="COLUMN=VALUE",
+        help="a scene input as in the CSV format, e.g. angle_deg=30",
+    )
+    s.add_argument(
+        "--set",
+        action="append",
+        default=[],
+        metavar="NAME=VALUE",
+        help="a parameter by name in SI, e.g. mu=0.2 or yield_strength=4e8",
+    )
+    s.add_argument(
+        "--velocity", type=float, default=1.0, help="approach speed [m/s] (> 0)"
     )
     s.add_argument("--radius", type=float, default=5e-3, help="sphere radius [m]")
     s.add_argument(

@@ -176,8 +176,8 @@ def parse_column(header: str, where: str = "") -> Column:
         )
     if unit not in UNITS or UNITS[unit][0] != dim:
         raise DataError(
-            f"{where}column {header!r}: unit {unit!r} does not fit {quantity!r}, "
-            f"a {dim}; expected one of {_units_of(dim)}"
+            f"{where}column {header!r}: unit {unit!r} does not fit {quantity!r} "
+            f"(dimension: {dim}); expected one of {_units_of(dim)}"
         )
     return Column(header, quantity, unit, UNITS[unit][1], is_sigma)
 

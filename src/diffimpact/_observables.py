@@ -19,6 +19,7 @@ from collections.abc import Callable
 import equinox as eqx
 import jax.numpy as jnp
 
+from ._checks import as_float
 from ._laws._base import AbstractNormalLaw
 from ._laws._friction import Friction
 from ._laws._jackson_green import JacksonGreen
@@ -226,7 +227,9 @@ def with_inputs(experiment: Experiment, inputs: dict) -> Experiment:
         return experiment
     where = [getter("scene." + spec.inputs[q]) for q in names]
     return eqx.tree_at(
-        lambda e: [w(e) for w in where], experiment, [inputs[q] for q in names]
+        lambda e: [w(e) for w in where],
+        experiment,
+        [as_float(inputs[q]) for q in names],
     )
 
 

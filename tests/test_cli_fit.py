@@ -1,0 +1,62 @@
+"""``diffimpact fit`` and ``diffimpact simulate --scene`` on the command line."""
+
+import json
+
+import numpy as np
+
+from diffimpact._cli import main
+
+
+def _data(tmp_path):
+    p = tmp_path / "normal.csv"
+    # Made by diffimpact itself (quadrature, S_y = 400 MPa, the normal_impact
+    # defaults); written with few digits, so the fit is near but not at 400 MPa.
+    p.write_text(
+        "# test data\nscene,impact_velocity_m_s,cor_normal,contact_time_us\n"
+        "normal_impact,0.3,0.6381,78.10\nnormal_impact,1.0,0.4898,59.96\n"
+        "normal_impact,3.0,0.4374,50.94\n"
+    )
+    return p
+
+
+def test_fit_writes_outputs_and_never_overwrites(tmp_path, capsys):
+    data, out = _data(tmp_path), tmp_path / "out"
+    argv = ["fit", str(data), "--free", "yield_strength", "--out", str(out)]
+    assert main(argv + ["--no-progress"]) == 0
+    printed = capsys.readouterr().out
+    assert "yield_strength" in printed and "std error" in printed
+    fit = json.loads((out / "fit.json").read_text())
+    s_y = fit["parameters"]["yield_strength"]
+    assert abs(s_y["value"] / 400e6 - 1) < 0.05 and s_y["std_error"] > 0
+    rows = (out / "residuals.csv").read_text().splitlines()
+    assert rows[0].startswith("row,impact_velocity,quantity") and len(rows) == 7
+    assert (out / "fit.png").stat().st_size > 0 and (out / "loop.png").exists()
+    before = (out / "fit.json").read_text()
+    assert main(argv) == 2  # refuses, before fitting
+    assert "--force" in capsys.readouterr().err
+    assert (out / "fit.json").read_text() == before
+    assert main(argv + ["--force", "--no-progress", "--set", "radius=5e-3"]) == 0
+
+
+def test_fit_bad_arguments(tmp_path, capsys):
+    data = _data(tmp_path)
+    assert main(["fit", str(data), "--free", "nonsense", "--out", str(tmp_path)]) == 2
+    assert "unknown parameter 'nonsense'" in capsys.readouterr().err
+    bad = ["fit", str(data), "--free", "yield_strength", "--set", "radius"]
+    assert main(bad) == 2
+    assert "NAME=VALUE" in capsys.readouterr().err
+
+
+def test_simulate_a_scene_with_inputs_and_parameters(capsys):
+    argv = ["simulate", "--scene", "sphere_on_incline", "--input", "angle_deg=45"]
+    assert main(argv + ["--input", "drop_height_mm=300", "--set", "mu=0.1"]) == 0
+    out = capsys.readouterr().out
+    values = {
+        line.split()[0]: float(line.split()[1])
+        for line in out.splitlines()
+        if line.strip() and line.split()[0] in ("cor_normal", "cor_tangential")
+    }
+    assert 0.0 < values["cor_normal"] < 1.0 and 0.0 < values["cor_tangential"] < 1.0
+    assert main(["simulate", "--scene", "sphere_on_incline", "--input", "a_deg=1"]) == 2
+    assert "unknown column" in capsys.readouterr().err
+    np.testing.assert_equal(main(["simulate", "--set", "mu=0.1"]), 2)
