@@ -120,20 +120,23 @@ def test_friction_gradient_matches_routh_derivative():
     assert rel(g, fd) < 1e-5
 
 
-@pytest.mark.xfail(
-    strict=True,
-    reason="KNOWN BUG (open): with friction, the mu-gradient of the tangential "
-    "rebound velocity is wrong for the Hunt-Crossley family (12 % uncalibrated, "
-    "0.4 % calibrated, drifting with the step count) although its values, its "
-    "impulse gradients and dT/dmu are right, and Hertz, JG and ADAMS gradients "
-    "are right. Clues: without the running-peak-force state (rate_dependent "
-    "forced False) the gradient is correct (-3.37377 vs FD -3.37378); widening "
-    "_PEAK_WIDTH from 1e-9 to 1e-6 fixes HC(cor=1) but leaves HC(cor=0.7) 0.4 % "
-    "off and loosens the tracked peak beyond the 1e-5 energy test.",
+@pytest.mark.parametrize(
+    "law",
+    [
+        di.HuntCrossley(cor=0.7),
+        di.HuntCrossley(cor=0.7, calibrated=True),
+        di.Flores(cor=0.7),
+    ],
+    ids=["HC", "HC-calibrated", "Flores"],
 )
-def test_friction_gradient_hunt_crossley():
-    g, fd = _mu_gradient(di.HuntCrossley(cor=0.7))
-    assert rel(g, fd) < 1e-4
+def test_friction_gradient_dissipative_laws(law):
+    """Regression (was a strict xfail): with friction, d v_t / d mu was 12 % off
+    for the Hunt-Crossley family.  The running-peak-force state, a diagnostic
+    integral with a 1e-9-wide switch, was in the step-size error estimate and
+    dictated the steps; the derivative of that discretisation was wrong.  It is
+    now left out of the error control (it never feeds back)."""
+    g, fd = _mu_gradient(law)
+    assert rel(g, fd) < 1e-5
 
 
 @pytest.mark.parametrize(
@@ -154,3 +157,16 @@ def test_bad_input(make, match):
 def test_friction_needs_smooth():
     with pytest.raises(ValueError, match="friction"):
         di.simulate(scene(30.0), LAW, "events", friction=di.Friction(0.2))
+
+
+def test_planar_peak_force_of_rate_dependent_law():
+    """The running peak force is not error-controlled in the planar solve (see
+    the regression above), so it is integrated at the steps the dynamics need:
+    measured 4.9e-4 from the exact 1-DOF peak for HC (e = 0.7).  Bound it."""
+    law = di.HuntCrossley(cor=0.7)
+    planar = di.simulate(scene(45.0), law, friction=di.Friction(0.0))
+    exact = di.simulate(
+        scene(45.0), law, settings=di.SolverSettings(rtol=1e-13, atol=1e-15)
+    )
+    assert rel(planar.max_force, exact.max_force) < 1e-3
+    assert rel(planar.cor_newton, exact.cor_newton) < 1e-8

@@ -86,7 +86,10 @@ def _planar_field(t, y, p: _Planar):
         def force_fn(dd, vv):
             return bound.loading_force_smooth(dd, vv, settings.phase_width)
 
-        acc = j_n @ q_ddot
+        # d_ddot = J_n q_ddot + (dJ_n/dt) q_dot: the second term vanishes for a
+        # sphere on a plane but not for a rotating link or bar.
+        j_n_dot = jax.jvp(lambda qq: p.scene.kinematics(qq)[1], (q,), (q_dot,))[1]
+        acc = j_n @ q_ddot + j_n_dot @ q_dot
         parts.append(_peak_rate(force_fn, f_n, y[2 * n + 2], d, v_n, acc, sc)[None])
     rate = sc.time / p.impulse_unit
     parts.append(
@@ -155,7 +158,15 @@ def solve_planar(scene, law, friction, settings):
             jnp.zeros(n_extra, v0.dtype),
         ]
     )
-    sol = _solve(_planar_field, y0, p, settings, _separation, False)
+    # The running peak force is a diagnostic integral with a 1e-9-wide switch:
+    # left in the error estimate it dictates the steps through the stiff
+    # stick phase, and the derivative of that discretisation was wrong (mu
+    # gradient of v_t 12 % off for Hunt-Crossley).  It never feeds back, so it
+    # is left out of the step-size control.
+    unchecked = (hist + 2,) if bound.rate_dependent else ()
+    sol = _solve(
+        _planar_field, y0, p, settings, _separation, False, unchecked=unchecked
+    )
     tau_end = _check_event(sol, "separation", settings)
     y = sol.ys[-1]
     q, q_dot, _, j_n, j_t, v_n, v_t, _, _ = p.forces(y)
@@ -172,7 +183,12 @@ def solve_planar(scene, law, friction, settings):
     extras = {
         "tangential_velocity_contact_before": v_t0,
         "tangential_velocity_contact_after": v_t,
-        "cor_tangential": v_t / v_t0,
+        # No tangential approach (e.g. a bar dropped without sliding speed at
+        # its tip): the ratio is undefined, reported as inf, with a gradient
+        # path that stays finite for every other output.
+        "cor_tangential": jnp.where(
+            v_t0 != 0, v_t / jnp.where(v_t0 != 0, v_t0, 1.0), jnp.inf
+        ),
         "tangential_impulse_compression": acc[2] * impulse_unit,
         "tangential_impulse_restitution": acc[3] * impulse_unit,
         **scene.report(q, q_dot),

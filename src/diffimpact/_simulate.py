@@ -151,9 +151,19 @@ def _default_float(cond):
     return wrapped
 
 
-def _solve(field, y0, args, settings, conds, directions, dense=False):
+def _solve(field, y0, args, settings, conds, directions, dense=False, unchecked=()):
     """One diffrax solve that ends at the first of ``conds`` (real-valued,
-    located by Newton so the end time is differentiable)."""
+    located by Newton so the end time is differentiable).
+
+    ``unchecked``: state indices left out of the step-size error estimate
+    (diagnostic integrals that never feed back into the dynamics)."""
+    norm = optx.rms_norm
+    if unchecked:
+        keep = jnp.ones(y0.shape, y0.dtype).at[jnp.asarray(unchecked)].set(0.0)
+
+        def norm(err):
+            return optx.rms_norm(err * keep)
+
     event = diffrax.Event(
         cond_fn=jax.tree.map(_default_float, conds),
         root_finder=optx.Newton(rtol=settings.event_tol, atol=settings.event_tol),
@@ -169,7 +179,7 @@ def _solve(field, y0, args, settings, conds, directions, dense=False):
         y0=y0,
         args=args,
         stepsize_controller=diffrax.PIDController(
-            rtol=settings.rtol, atol=settings.atol
+            rtol=settings.rtol, atol=settings.atol, norm=norm
         ),
         saveat=diffrax.SaveAt(t1=True, dense=dense),
         event=event,
@@ -457,12 +467,15 @@ def _validated(problem: NormalProblem) -> NormalProblem:
 def _simulate(scene, law, method, settings, n_history, friction=None):
     from .scenes._planar import AbstractPlanarScene
 
-    if isinstance(scene, AbstractPlanarScene) and friction is not None:
+    if isinstance(scene, AbstractPlanarScene) and (
+        friction is not None or not scene.normal_decouples
+    ):
         from ._planar_solve import solve_planar
 
         return solve_planar(scene, law, friction, settings)
-    # Frictionless (or 1-DOF) scenes: the normal DOF decouples, so the scene is
-    # solved as its 1-DOF normal problem, with no tangential state at all.
+    # 1-DOF scenes, and frictionless planar scenes whose normal DOF decouples
+    # (`normal_decouples`): solved as the 1-DOF normal problem, with no
+    # tangential state at all.
     problem = _validated(scene.normal_problem())
     bound = _bind(law, problem)
     if method == "smooth":
@@ -525,4 +538,15 @@ def simulate(
         )
     if friction is not None and method != "smooth":
         raise ValueError("friction is solved by method='smooth' only")
+    from .scenes._planar import AbstractPlanarScene
+
+    if (
+        isinstance(scene, AbstractPlanarScene)
+        and not scene.normal_decouples
+        and method != "smooth"
+    ):
+        raise ValueError(
+            f"{type(scene).__name__} is solved by method='smooth' only: its "
+            "rotation couples to the normal motion, even without friction"
+        )
     return _simulate(scene, law, method, settings, n_history, friction)

@@ -1,7 +1,9 @@
 """Impact scenes: each holds its bodies, geometry and state at first contact."""
 
+from ._bar import FreeBar as FreeBar
 from ._base import AbstractScene as AbstractScene
 from ._base import NormalProblem as NormalProblem
+from ._link import RotatingLink as RotatingLink
 from ._normal import Collinear as Collinear
 from ._normal import NormalImpact as NormalImpact
 from ._planar import AbstractPlanarScene as AbstractPlanarScene

@@ -10,6 +10,7 @@ diagonal mass matrix, and says where its contact point is: the interference
 from __future__ import annotations
 
 import abc
+from typing import ClassVar
 
 import equinox as eqx
 import jax.numpy as jnp
@@ -21,6 +22,13 @@ from ._base import AbstractScene, NormalProblem
 
 
 class AbstractPlanarScene(AbstractScene):
+    # True when, without friction, the normal DOF decouples from the others, so
+    # that the scene is solved exactly as its 1-DOF ``normal_problem()`` (with
+    # ``frictionless_report``).  False (the default): rotation couples to the
+    # normal motion (a link, a bar), and even a frictionless impact is solved by
+    # the planar solver.
+    normal_decouples: ClassVar[bool] = False
+
     @abc.abstractmethod
     def mass_diagonal(self) -> Array:
         """Diagonal of the constant generalised mass matrix, shape ``(n,)``."""
@@ -69,6 +77,7 @@ class SphereOnIncline(AbstractPlanarScene):
     angle: Array = eqx.field(converter=as_float)
     height: Array = eqx.field(converter=as_float)
     gravity: Array = eqx.field(converter=as_float, default=9.81)
+    normal_decouples: ClassVar[bool] = True
 
     def __check_init__(self):
         require_positive(self.mass, "SphereOnIncline.mass", "kg")
