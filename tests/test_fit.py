@@ -207,3 +207,15 @@ def test_ball_prism_real_data():
     # slide at 26 deg for any mu that fits the other two (README).
     assert r.predicted[0, k] > 5.0 / 7.0 - 1e-3
     assert math.isclose(float(r.measured[0, k]), 0.578)
+
+
+@pytest.mark.parametrize(
+    "name", ["normal_impact", "sphere_on_incline", "rotating_link", "free_bar"]
+)
+def test_every_registered_scene_predicts_finite_outputs(name):
+    """The fit's scene registry: each built-in experiment simulates, and every
+    quantity it predicts is finite (CORs in (0, 1], times > 0)."""
+    exp = di.Experiment.default(name)
+    out = di.predict(exp)
+    assert all(np.isfinite(float(v)) for v in out.values()), out
+    assert 0.0 < float(out["cor_normal"]) <= 1.0 and float(out["contact_time"]) > 0

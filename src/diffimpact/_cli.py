@@ -189,7 +189,7 @@ def main(argv=None) -> int:
     s = sub.add_parser("simulate", help="one normal impact of a sphere on a flat")
     s.add_argument(
         "--scene",
-        choices=("normal_impact", "sphere_on_incline"),
+        choices=("normal_impact", "sphere_on_incline", "rotating_link", "free_bar"),
         default="normal_impact",
         help="scene (other than normal_impact: its built-in defaults, changed "
         "with --input and --set)",
