@@ -44,5 +44,9 @@ from ._result import History as History
 from ._result import ImpactResult as ImpactResult
 from ._simulate import simulate as simulate
 from ._solver import SolverSettings as SolverSettings
+from ._sweep import grid as grid
+from ._sweep import sample as sample
+from ._sweep import sweep as sweep
+from ._sweep import sweep_map as sweep_map
 
 __version__ = "0.1.0"

@@ -236,9 +236,10 @@ def main(argv=None) -> int:
         )
     s.set_defaults(func=simulate_cmd)
 
-    from . import _cli_fit
+    from . import _cli_fit, _cli_sweep
 
     _cli_fit.register(sub)
+    _cli_sweep.register(sub)
 
     args = parser.parse_args(argv)
     try:

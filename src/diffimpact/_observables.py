@@ -74,20 +74,26 @@ class SceneSpec:
 # both from data.md A's ranges; S_y of the prism a mid-range start value.
 _BALL_RADIUS = 9.5e-3
 _STEEL_DENSITY = 7850.0
-_BALL = Material(208e9, 0.3, math.inf, _STEEL_DENSITY)
-_PRISM = Material(207e9, 0.29, 400e6, _STEEL_DENSITY)
 _BALL_MASS = 4.0 / 3.0 * math.pi * _BALL_RADIUS**3 * _STEEL_DENSITY
+
+
+def _ball_and_prism():
+    # Made on call, not at import: creating arrays at import would start JAX's
+    # backend before a user can call jax.distributed.initialize().
+    ball = Material(208e9, 0.3, math.inf, _STEEL_DENSITY)
+    prism = Material(207e9, 0.29, 400e6, _STEEL_DENSITY)
+    return ball, prism
 
 
 def _sphere_on_incline() -> Experiment:
     scene = SphereOnIncline(
-        _BALL_MASS, _BALL_RADIUS, _BALL, _PRISM, math.radians(30.0), 0.29
+        _BALL_MASS, _BALL_RADIUS, *_ball_and_prism(), math.radians(30.0), 0.29
     )
     return Experiment(scene, JacksonGreen(), Friction(0.2, 0.0))
 
 
 def _normal_impact() -> Experiment:
-    scene = NormalImpact(_BALL_MASS, _BALL_RADIUS, _BALL, _PRISM, 1.0)
+    scene = NormalImpact(_BALL_MASS, _BALL_RADIUS, *_ball_and_prism(), 1.0)
     return Experiment(scene, JacksonGreen(), None, method="quadrature")
 
 

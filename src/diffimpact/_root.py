@@ -46,8 +46,10 @@ def _newton(fn, fprime, rtol, max_iter, lower, x0, args):
             f, df = jax.value_and_grad(fn)(x, args)
         else:
             f, df = fn(x, args), fprime(x, args)
-        x_new = jnp.maximum(x - f / df, lower)
-        return i + 1, x_new, x_new - x
+        # In the iterate's dtype: a float32 impact stays float32 even where
+        # `fn` promotes (float64 constants under jax_enable_x64).
+        x_new = jnp.maximum(x - f / df, lower).astype(x.dtype)
+        return i + 1, x_new, (x_new - x).astype(x.dtype)
 
     x0 = jnp.asarray(x0)
     _, x, _ = lax.while_loop(cond, body, (0, x0, jnp.full_like(x0, jnp.inf)))

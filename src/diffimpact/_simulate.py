@@ -22,7 +22,7 @@ import jax.numpy as jnp
 import optimistix as optx
 
 from ._checks import require
-from ._laws._base import AbstractBoundLaw, AbstractNormalLaw
+from ._laws._base import MAX_DEPTH, AbstractBoundLaw, AbstractNormalLaw
 from ._laws._dissipative import _AbstractDampedHertz
 from ._result import History, ImpactResult
 from ._root import newton_root
@@ -170,7 +170,7 @@ def _solve(field, y0, args, settings, conds, directions, dense=False, unchecked=
         direction=directions,
     )
     # Times in the state's dtype, so that a float32 impact stays float32.
-    return diffrax.diffeqsolve(
+    sol = diffrax.diffeqsolve(
         diffrax.ODETerm(field),
         settings.solver,
         t0=jnp.zeros((), y0.dtype),
@@ -185,7 +185,25 @@ def _solve(field, y0, args, settings, conds, directions, dense=False, unchecked=
         event=event,
         max_steps=settings.max_steps,
         adjoint=settings.adjoint,
+        throw=False,
     )
+    # Our own errors (diffrax's would not say which setting to change).
+    r = sol.result
+    ys = require(
+        sol.ys,
+        r != diffrax.RESULTS.max_steps_reached,
+        f"diffimpact: the step budget SolverSettings.max_steps = {settings.max_steps} "
+        "ran out before the bodies separated; raise it, e.g. "
+        f"SolverSettings(max_steps={4 * settings.max_steps}) (stiff cases: holding "
+        "stick with friction, very soft or very plastic contact)",
+    )
+    ys = require(
+        ys,
+        (r == diffrax.RESULTS.successful) | (r == diffrax.RESULTS.event_occurred),
+        "diffimpact: the ODE solve failed (step size underflow or a non-finite "
+        "state); check the inputs, or loosen SolverSettings.rtol/atol",
+    )
+    return eqx.tree_at(lambda s: s.ys, sol, ys)
 
 
 def _check_event(sol, what: str, settings: SolverSettings):
@@ -442,10 +460,36 @@ def _bind(law: AbstractNormalLaw, problem: NormalProblem) -> AbstractBoundLaw:
     if isinstance(law, _AbstractDampedHertz) and law.calibrated:
         from ._calibrate import damping_ratio
 
-        return law.bind(
+        bound = law.bind(
             problem.contact, problem.velocity, damping_ratio(law.cor, law.exponent)
         )
-    return law.bind(problem.contact, problem.velocity)
+    else:
+        bound = law.bind(problem.contact, problem.velocity)
+    return _within_model(problem, bound)
+
+
+def _within_model(problem, bound):
+    """Guard (through ``bound.radius``, used by every JG formula) that the impact
+    lies where the contact law holds."""
+    radius = getattr(bound, "radius", None)
+    if radius is None:
+        return bound
+    k, n = bound.scale()
+    m, v0 = problem.mass, problem.velocity
+    d_ref = ((n + 1.0) * m * v0**2 / (2.0 * k)) ** (1.0 / (n + 1.0))
+    # JG's fits (and Hertz behind them) describe a small contact, a << R;
+    # (JG-6) uses cos(pi a / R).  An impact whose elastic estimate already
+    # pushes the sphere half a radius deep is outside the model: say so
+    # instead of returning what the formulas give there.
+    radius = require(
+        radius,
+        ~(d_ref > MAX_DEPTH * radius),
+        "diffimpact: the impact is outside the contact model: its Hertz "
+        f"interference estimate exceeds {MAX_DEPTH} x the effective radius "
+        "(the laws assume a contact small against the radius); lower the "
+        "speed or mass, or raise the modulus or radius",
+    )
+    return eqx.tree_at(lambda b: b.radius, bound, radius)
 
 
 def _validated(problem: NormalProblem) -> NormalProblem:

@@ -16,7 +16,7 @@ from jaxtyping import Array
 from .._checks import as_float
 from .._materials import ContactProperties
 from .._smooth import safe_div, safe_pow, safe_powers, safe_sqrt, step
-from ._base import AbstractBoundLaw, AbstractNormalLaw
+from ._base import MAX_DEPTH, AbstractBoundLaw, AbstractNormalLaw
 
 _f = eqx.field
 
@@ -79,8 +79,16 @@ class JacksonGreen(AbstractNormalLaw):
         # A yield strength above E* is never reached (d_c would exceed the
         # radius); clamping keeps S_y = inf ("never yields") finite in every
         # branch, so gradients stay finite too.
-        s_y = jnp.minimum(contact.yield_strength, e_star)
         c = self.c_a * jnp.exp(self.c_b * contact.poisson_ratio)  # JG-1
+        # A yield strength so high that the elasto-plastic switch lies deeper
+        # than MAX_DEPTH * R is never reached by an impact the model accepts
+        # (simulate rejects deeper ones): clamp it there.  That keeps S_y = inf
+        # ("never yields") finite in every branch, and keeps the unused
+        # elasto-plastic branch inside the range of its formulas, so gradients
+        # through the branch select stay finite (with the old clamp S_y <= E*
+        # the switch sat ~12 R deep and the unused branch gave NaN gradients).
+        s_cap = 2.0 * e_star / (jnp.pi * c) * jnp.sqrt(MAX_DEPTH / self.elastic_limit)
+        s_y = jnp.minimum(contact.yield_strength, s_cap)
         d_c = (jnp.pi * c * s_y / (2.0 * e_star)) ** 2 * radius  # JG-2
         f_c = 4.0 / 3.0 * (radius / e_star) ** 2 * (jnp.pi * c * s_y / 2.0) ** 3
         b = self.b_a * jnp.exp(self.b_b * s_y / e_star)  # JG-6
