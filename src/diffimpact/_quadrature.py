@@ -42,8 +42,9 @@ def _gauss01(order: int):
 def _log_work(force, a, log_ratio, order):
     """``int_a^{a e^L} force(x) dx`` by Gauss-Legendre in ``log x``."""
     s, w = _gauss01(order)
-    x = a * jnp.exp(jnp.asarray(s) * log_ratio)
-    return log_ratio * jnp.sum(jnp.asarray(w) * force(x) * x)
+    dt = jnp.result_type(a, log_ratio)  # nodes in the impact's dtype (float32 stays)
+    x = a * jnp.exp(jnp.asarray(s, dt) * log_ratio)
+    return log_ratio * jnp.sum(jnp.asarray(w, dt) * force(x) * x)
 
 
 def _travel_time(delta, potential_drop, m, order, s_lo=0.0, s_hi=1.0):
@@ -52,9 +53,10 @@ def _travel_time(delta, potential_drop, m, order, s_lo=0.0, s_hi=1.0):
     and ``potential_drop(s) = U(d_end) - U(d)``.  With ``d_end`` a turning point
     the integrand is smooth at ``s = 0`` (``drop ~ s^2``)."""
     sigma, w = _gauss01(order)
-    s = s_lo + (s_hi - s_lo) * jnp.asarray(sigma)
+    dt = jnp.result_type(delta, m)
+    s = s_lo + (s_hi - s_lo) * jnp.asarray(sigma, dt)
     v = jnp.sqrt(2.0 * jax.vmap(potential_drop)(s) / m)
-    return (s_hi - s_lo) * jnp.sum(jnp.asarray(w) * 2.0 * delta * s / v)
+    return (s_hi - s_lo) * jnp.sum(jnp.asarray(w, dt) * 2.0 * delta * s / v)
 
 
 def solve_quadrature(problem, bound, settings):

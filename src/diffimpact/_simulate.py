@@ -157,6 +157,12 @@ def _solve(field, y0, args, settings, conds, directions, dense=False, unchecked=
 
     ``unchecked``: state indices left out of the step-size error estimate
     (diagnostic integrals that never feed back into the dynamics)."""
+    # Tolerances no tighter than the state's dtype can honour: the float64
+    # defaults (1e-11 / 1e-13) would stall a float32 solve, so they are
+    # floored at 100 machine epsilons of the state (no effect in float64).
+    floor = 100.0 * float(jnp.finfo(y0.dtype).eps)
+    rtol, atol = max(settings.rtol, floor), max(settings.atol, floor)
+    event_tol = max(settings.event_tol, floor)
     norm = optx.rms_norm
     if unchecked:
         keep = jnp.ones(y0.shape, y0.dtype).at[jnp.asarray(unchecked)].set(0.0)
@@ -166,7 +172,7 @@ def _solve(field, y0, args, settings, conds, directions, dense=False, unchecked=
 
     event = diffrax.Event(
         cond_fn=jax.tree.map(_default_float, conds),
-        root_finder=optx.Newton(rtol=settings.event_tol, atol=settings.event_tol),
+        root_finder=optx.Newton(rtol=event_tol, atol=event_tol),
         direction=directions,
     )
     # Times in the state's dtype, so that a float32 impact stays float32.
@@ -178,32 +184,35 @@ def _solve(field, y0, args, settings, conds, directions, dense=False, unchecked=
         dt0=None,
         y0=y0,
         args=args,
-        stepsize_controller=diffrax.PIDController(
-            rtol=settings.rtol, atol=settings.atol, norm=norm
-        ),
+        stepsize_controller=diffrax.PIDController(rtol=rtol, atol=atol, norm=norm),
         saveat=diffrax.SaveAt(t1=True, dense=dense),
         event=event,
         max_steps=settings.max_steps,
         adjoint=settings.adjoint,
         throw=False,
     )
-    # Our own errors (diffrax's would not say which setting to change).
+    # Our own errors (diffrax's would not say which setting to change),
+    # threaded through both the states and the times, so that the later "no
+    # separation within max_time" check cannot fire first and mislead.
     r = sol.result
-    ys = require(
-        sol.ys,
-        r != diffrax.RESULTS.max_steps_reached,
-        f"diffimpact: the step budget SolverSettings.max_steps = {settings.max_steps} "
-        "ran out before the bodies separated; raise it, e.g. "
-        f"SolverSettings(max_steps={4 * settings.max_steps}) (stiff cases: holding "
-        "stick with friction, very soft or very plastic contact)",
-    )
-    ys = require(
-        ys,
-        (r == diffrax.RESULTS.successful) | (r == diffrax.RESULTS.event_occurred),
-        "diffimpact: the ODE solve failed (step size underflow or a non-finite "
-        "state); check the inputs, or loosen SolverSettings.rtol/atol",
-    )
-    return eqx.tree_at(lambda s: s.ys, sol, ys)
+    checks = [
+        (
+            r != diffrax.RESULTS.max_steps_reached,
+            f"diffimpact: the step budget SolverSettings.max_steps = "
+            f"{settings.max_steps} ran out before the bodies separated; raise it, "
+            f"e.g. SolverSettings(max_steps={4 * settings.max_steps}) (stiff cases: "
+            "holding stick with friction, very soft or very plastic contact)",
+        ),
+        (
+            (r == diffrax.RESULTS.successful) | (r == diffrax.RESULTS.event_occurred),
+            "diffimpact: the ODE solve failed (step size underflow or a non-finite "
+            "state); check the inputs, or loosen SolverSettings.rtol/atol",
+        ),
+    ]
+    ys, ts = sol.ys, sol.ts
+    for ok, message in checks:
+        ys, ts = require(ys, ok, message), require(ts, ok, message)
+    return eqx.tree_at(lambda s: (s.ys, s.ts), sol, (ys, ts))
 
 
 def _check_event(sol, what: str, settings: SolverSettings):
@@ -507,6 +516,43 @@ def _validated(problem: NormalProblem) -> NormalProblem:
     return eqx.tree_at(lambda p: (p.velocity, p.mass), problem, (v, m))
 
 
+def _quadrature(problem, bound, settings):
+    """The ODE-free path.  Its travel times integrate ``1/sqrt(potential drop)``
+    near a turning point, where float32 cancellation can make the drop negative
+    (NaN times, seen in the stress grid): a float32 impact is computed in
+    float64 when JAX has it, and returned in float32.  Without x64 the outputs
+    are checked, and a non-finite one is an error, never a silent NaN."""
+    from ._quadrature import solve_quadrature
+
+    dtype = problem.velocity.dtype
+    if dtype != jnp.float32 or not jax.config.jax_enable_x64:
+        raw = solve_quadrature(problem, bound, settings)
+        if dtype == jnp.float32:
+            finite = jnp.all(
+                jnp.stack([jnp.all(jnp.isfinite(x)) for x in jax.tree.leaves(raw)])
+            )
+            raw = jax.tree.map(
+                lambda x: require(
+                    x,
+                    finite,
+                    "diffimpact: float32 lost the quadrature's precision (a "
+                    "non-finite output); enable float64 (jax_enable_x64)",
+                ),
+                raw,
+            )
+        return raw
+
+    def cast(tree, to):
+        return jax.tree.map(
+            lambda x: x.astype(to) if eqx.is_inexact_array(x) else x, tree
+        )
+
+    raw = solve_quadrature(
+        cast(problem, jnp.float64), cast(bound, jnp.float64), settings
+    )
+    return cast(raw, dtype)
+
+
 @eqx.filter_jit
 def _simulate(scene, law, method, settings, n_history, friction=None):
     from .scenes._planar import AbstractPlanarScene
@@ -527,9 +573,7 @@ def _simulate(scene, law, method, settings, n_history, friction=None):
     elif method == "events":
         raw = _solve_events(problem, bound, settings)
     else:
-        from ._quadrature import solve_quadrature
-
-        raw = solve_quadrature(problem, bound, settings)
+        raw = _quadrature(problem, bound, settings)
     out = _assemble(problem, bound, raw)
     extras = scene.extras(out["rebound_velocity"])
     if isinstance(scene, AbstractPlanarScene):
