@@ -130,11 +130,15 @@ def test_friction_gradient_matches_routh_derivative():
     ids=["HC", "HC-calibrated", "Flores"],
 )
 def test_friction_gradient_dissipative_laws(law):
-    """Regression (was a strict xfail): with friction, d v_t / d mu was 12 % off
-    for the Hunt-Crossley family.  The running-peak-force state, a diagnostic
-    integral with a 1e-9-wide switch, was in the step-size error estimate and
-    dictated the steps; the derivative of that discretisation was wrong.  It is
-    now left out of the error control (it never feeds back)."""
+    """With friction, d v_t / d mu of the Hunt-Crossley family at mu = 0.05.
+
+    KNOWN BUG, NOT FIXED (README, known limits): the AD-vs-FD error of this
+    gradient swings with the step sequence, from 1e-8 to 1e-3 for nearby mu
+    (0.05 passes; 0.051 and 0.06 do not).  It arises as the solve crosses
+    d = 0 at separation (a fixed-time solve that stops inside the contact is
+    right to 2e-9) and grows as the tolerances tighten.  Leaving the
+    running-peak-force state out of the step control changed the step
+    sequence, not the cause.  Hertz, JG and ADAMS are not affected."""
     g, fd = _mu_gradient(law)
     assert rel(g, fd) < 1e-5
 
