@@ -170,6 +170,21 @@ def _solve(field, y0, args, settings, conds, directions, dense=False, unchecked=
         def norm(err):
             return optx.rms_norm(err * keep)
 
+    # diffrax's default reverse mode stores O(log max_steps) checkpoints and
+    # re-runs the steps in between inside the backward pass.  That re-run is
+    # compiled in a different context, its rounding differs in the last bits,
+    # and at our tolerances an accept/reject decision can flip: the backward
+    # pass then differentiates a different step sequence from the one taken
+    # (measured: d v_t / d mu of a Hunt-Crossley incline 1e-3 off, varying
+    # with the checkpoint count; a vmapped forward solve took 127 steps where
+    # the plain one took 126).  Storing every step removes the re-run, costs
+    # about 170 bytes per step (measured, planar scene) and is faster.
+    adjoint = settings.adjoint
+    if (
+        type(adjoint) is diffrax.RecursiveCheckpointAdjoint
+        and adjoint.checkpoints is None
+    ):
+        adjoint = diffrax.RecursiveCheckpointAdjoint(checkpoints=settings.max_steps)
     event = diffrax.Event(
         cond_fn=jax.tree.map(_default_float, conds),
         root_finder=optx.Newton(rtol=event_tol, atol=event_tol),
@@ -188,7 +203,7 @@ def _solve(field, y0, args, settings, conds, directions, dense=False, unchecked=
         saveat=diffrax.SaveAt(t1=True, dense=dense),
         event=event,
         max_steps=settings.max_steps,
-        adjoint=settings.adjoint,
+        adjoint=adjoint,
         throw=False,
     )
     # Our own errors (diffrax's would not say which setting to change),

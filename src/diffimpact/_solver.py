@@ -46,6 +46,10 @@ class SolverSettings(eqx.Module):
       ``diffrax.ForwardMode()`` supports forward mode (``jax.jvp``,
       ``jax.jacfwd``), which is cheaper when there are fewer parameters than
       outputs, as in least-squares fitting (:func:`diffimpact.fit` uses it).
+      A ``RecursiveCheckpointAdjoint`` without ``checkpoints`` is run with
+      ``checkpoints=max_steps`` (every step stored, none re-computed): a
+      re-computed step can take a different accept/reject decision and the
+      gradient then belongs to another step sequence (see ``_simulate._solve``).
     """
 
     solver: diffrax.AbstractSolver = eqx.field(static=True, default=diffrax.Dopri8())
