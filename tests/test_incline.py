@@ -2,7 +2,6 @@
 
 import math
 
-import diffrax
 import equinox as eqx
 import jax
 import jax.numpy as jnp
@@ -92,14 +91,12 @@ def test_frictionless_is_the_normal_impact(monkeypatch):
     assert float(oblique.extras["angular_velocity_after"]) == 0.0
 
 
-def _mu_gradient(law, mu=0.05, settings=di.SolverSettings(), fd=True):
-    def v_t(mu, settings=settings):
+def _mu_gradient(law, mu=0.05):
+    def v_t(mu, settings=di.SolverSettings()):
         r = di.simulate(scene(45.0), law, friction=di.Friction(mu), settings=settings)
         return r.extras["tangential_velocity_after"]
 
     g = jax.grad(v_t)(mu)
-    if not fd:
-        return g
     tight = di.SolverSettings(rtol=1e-13, atol=1e-15)
     h = 1e-4
     return g, (v_t(mu + h, tight) - v_t(mu - h, tight)) / (2 * h)
@@ -123,31 +120,28 @@ def test_friction_gradient_matches_routh_derivative():
     assert rel(g, fd) < 1e-5
 
 
-@pytest.mark.parametrize("mu", [0.05, 0.051, 0.06])
 @pytest.mark.parametrize(
-    "law",
+    "law, mu",
     [
-        di.HuntCrossley(cor=0.7),
-        di.HuntCrossley(cor=0.7, calibrated=True),
-        di.Flores(cor=0.7),
+        (di.HuntCrossley(cor=0.7), 0.051),
+        (di.HuntCrossley(cor=0.7), 0.06),
+        (di.Flores(cor=0.7), 0.051),
     ],
-    ids=["HC", "HC-calibrated", "Flores"],
+    ids=["HC-0.051", "HC-0.06", "Flores-0.051"],
 )
 def test_friction_gradient_dissipative_laws(law, mu):
     """With friction, d v_t / d mu of the Hunt-Crossley family matches central
     differences of a tightly converged solve.
 
     Regression: with diffrax's default checkpointing the error swung with the
-    step sequence, 2e-7 at mu = 0.05, 1e-5 at 0.051, 1e-3 at 0.06.  The
-    backward pass re-computed steps in a differently compiled context and an
-    accept/reject decision flipped.  Every step is now stored (measured
-    after: 1e-12 to 6e-11).  1e-6 leaves room for the FD truncation error
-    (h = 1e-4, second order) and the tolerances."""
+    step sequence (2e-7 at mu = 0.05, 1e-5 at 0.051, 1e-3 at 0.06; also
+    1e-6-level for Hertz and JG).  The backward pass re-computed steps in a
+    differently compiled context and an accept/reject decision flipped.
+    Every step is now stored (measured after: 1e-12 to 6e-11 for all laws).
+    1e-6 leaves room for the FD truncation error (h = 1e-4) and the
+    tolerances, and is far below the 1e-5..1e-3 of the bug."""
     g, fd = _mu_gradient(law, mu)
     assert rel(g, fd) < 1e-6
-    # The reverse-mode gradient must not depend on how diffrax checkpoints.
-    few = di.SolverSettings(adjoint=diffrax.RecursiveCheckpointAdjoint(checkpoints=2))
-    assert rel(_mu_gradient(law, mu, settings=few, fd=False), g) < 1e-6
 
 
 @pytest.mark.parametrize(
@@ -171,13 +165,14 @@ def test_friction_needs_smooth():
 
 
 def test_planar_peak_force_of_rate_dependent_law():
-    """The running peak force is not error-controlled in the planar solve (see
-    the regression above), so it is integrated at the steps the dynamics need:
-    measured 4.9e-4 from the exact 1-DOF peak for HC (e = 0.7).  Bound it."""
+    """The running peak force is error-controlled 1e6 times more loosely than
+    the dynamics in the planar solve (it never feeds back, and full control
+    would double the steps): measured 4.7e-5 from the exact 1-DOF peak for HC
+    (e = 0.7).  Bound it at 2e-4."""
     law = di.HuntCrossley(cor=0.7)
     planar = di.simulate(scene(45.0), law, friction=di.Friction(0.0))
     exact = di.simulate(
         scene(45.0), law, settings=di.SolverSettings(rtol=1e-13, atol=1e-15)
     )
-    assert rel(planar.max_force, exact.max_force) < 1e-3
+    assert rel(planar.max_force, exact.max_force) < 2e-4
     assert rel(planar.cor_newton, exact.cor_newton) < 1e-8

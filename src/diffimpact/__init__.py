@@ -17,6 +17,7 @@ if not _os.environ.get("DIFFIMPACT_NO_X64"):
 
 from . import scenes as scenes
 from ._calibrate import damping_ratio as damping_ratio
+from ._critical import critical_angles as critical_angles
 from ._data import DataError as DataError
 from ._data import ExperimentData as ExperimentData
 from ._data import load_experiments as load_experiments

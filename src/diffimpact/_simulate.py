@@ -151,12 +151,14 @@ def _default_float(cond):
     return wrapped
 
 
-def _solve(field, y0, args, settings, conds, directions, dense=False, unchecked=()):
+def _solve(field, y0, args, settings, conds, directions, dense=False, weights=None):
     """One diffrax solve that ends at the first of ``conds`` (real-valued,
     located by Newton so the end time is differentiable).
 
-    ``unchecked``: state indices left out of the step-size error estimate
-    (diagnostic integrals that never feed back into the dynamics)."""
+    ``weights``: ``{state index: weight}`` scaling that state's share of the
+    step-size error estimate (diagnostic integrals that never feed back into
+    the dynamics: weight 0 leaves one out, a small weight loosens its
+    tolerance by that factor)."""
     # Tolerances no tighter than the state's dtype can honour: the float64
     # defaults (1e-11 / 1e-13) would stall a float32 solve, so they are
     # floored at 100 machine epsilons of the state (no effect in float64).
@@ -164,8 +166,10 @@ def _solve(field, y0, args, settings, conds, directions, dense=False, unchecked=
     rtol, atol = max(settings.rtol, floor), max(settings.atol, floor)
     event_tol = max(settings.event_tol, floor)
     norm = optx.rms_norm
-    if unchecked:
-        keep = jnp.ones(y0.shape, y0.dtype).at[jnp.asarray(unchecked)].set(0.0)
+    if weights:
+        keep = jnp.ones(y0.shape, y0.dtype)
+        for i, w in weights.items():
+            keep = keep.at[i].set(w)
 
         def norm(err):
             return optx.rms_norm(err * keep)

@@ -1,0 +1,236 @@
+"""Critical impact angles: where a contact switches between sliding and sticking.
+
+The switch is located on the smooth solve's slip diagnostics
+(``result.extras["min_slip_ratio"]`` / ``["final_slip_ratio"]``, see
+``_planar_solve.py``) with a differentiable root search: Brent's method on
+forward solves finds each root, and a custom_jvp supplies the implicit
+derivative ``d angle / d theta = -(dg/dtheta) / (dg/d angle)`` (the rule of
+``_root.newton_root``), so ``jax.grad`` of a critical angle with respect to any
+parameter of the law, the friction or the scene works.
+
+``newton_root`` itself is not called: its ``lax.while_loop`` compiles a solve
+(~20 s) even for a root already known to 1e-9 rad, and its JVP rule runs the
+loop again.  Here the primal costs forward solves only, and the derivative one
+reverse-mode gradient at each root (compiled once, cached).
+"""
+
+from __future__ import annotations
+
+import math
+from functools import partial
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import numpy as np
+from jax.custom_derivatives import SymbolicZero
+
+from ._simulate import simulate
+from ._solver import SolverSettings
+
+# Friction scenes need a larger step budget (stick is stiff for an explicit
+# solver; ~3,500 steps for a ball that ends rolling).
+_SETTINGS = SolverSettings(max_steps=16384)
+
+# Level (in slip widths) at which a contact *with* tangential approach is taken
+# to switch: the smooth law ends at asinh(1/2) widths exactly when the sharp law
+# ends at zero slip (docstring of `critical_angles`).
+_LEVEL_SLIDING = math.asinh(0.5)
+
+
+def _indicator(angle, dyn, static, settings, level):
+    """Signed stick/slip indicator at ``angle``, in slip widths: > 0 slides."""
+    make, law, friction = eqx.combine(dyn, static)
+    r = simulate(make(angle), law, friction=friction, settings=settings)
+    ex = r.extras
+    approach = ex["tangential_velocity_contact_before"] != 0
+    ratio = jnp.where(approach, ex["min_slip_ratio"], ex["final_slip_ratio"])
+    if level is None:
+        lev = jnp.where(approach, _LEVEL_SLIDING, friction.stick_band)
+    else:
+        lev = level
+    return ratio / settings.slip_width - lev
+
+
+_indicator_jit = eqx.filter_jit(_indicator)
+
+
+def _concrete(tree):
+    """The values of ``tree`` with derivatives cut; refuses tracers (jit)."""
+    tree = jax.lax.stop_gradient(tree)
+    if any(isinstance(x, jax.core.Tracer) for x in jax.tree.leaves(tree)):
+        raise ValueError(
+            "critical_angles cannot run under jax.jit / jax.vmap: how many critical "
+            "angles there are depends on the values.  Call it outside jit; "
+            "jax.grad and jax.jacfwd of its result work."
+        )
+    return tree
+
+
+def _brent(f, xa, xb, fa, fb, xtol, max_iter):
+    """Root of ``f`` in ``[xa, xb]`` (``fa fb < 0``) by Brent's method (scipy's
+    ``brentq``: inverse quadratic interpolation with a bisection safeguard,
+    which matters here: the indicator is flat on its stick side)."""
+    xpre, xcur, fpre, fcur = xa, xb, fa, fb
+    xblk = fblk = spre = scur = 0.0
+    rtol = 4.0 * np.finfo(float).eps
+    for _ in range(max_iter):
+        if fpre != 0.0 and fcur != 0.0 and (fpre < 0.0) != (fcur < 0.0):
+            xblk, fblk = xpre, fpre
+            spre = scur = xcur - xpre
+        if abs(fblk) < abs(fcur):
+            xpre, xcur, xblk = xcur, xblk, xcur
+            fpre, fcur, fblk = fcur, fblk, fcur
+        delta = 0.5 * (xtol + rtol * abs(xcur))
+        sbis = 0.5 * (xblk - xcur)
+        if fcur == 0.0 or abs(sbis) < delta:
+            return xcur
+        if abs(spre) > delta and abs(fcur) < abs(fpre):
+            if xpre == xblk:  # secant
+                stry = -fcur * (xcur - xpre) / (fcur - fpre)
+            else:  # inverse quadratic interpolation
+                dpre = (fpre - fcur) / (xpre - xcur)
+                dblk = (fblk - fcur) / (xblk - xcur)
+                stry = (
+                    -fcur * (fblk * dblk - fpre * dpre) / (dblk * dpre * (fblk - fpre))
+                )
+            if 2.0 * abs(stry) < min(abs(spre), 3.0 * abs(sbis) - delta):
+                spre, scur = scur, stry
+            else:
+                spre = scur = sbis
+        else:
+            spre = scur = sbis
+        xpre, fpre = xcur, fcur
+        xcur += scur if abs(scur) > delta else (delta if sbis > 0 else -delta)
+        fcur = f(xcur)
+    return xcur
+
+
+@partial(jax.custom_jvp, nondiff_argnums=(0,))
+def _implicit_root(grad_fn, x, args):
+    """``x``, a root of ``g(x, args) = 0`` found outside JAX, with the implicit
+    derivative ``dx = -(dg/dargs . dargs) / (dg/dx)`` (the rule of
+    :func:`diffimpact._root.newton_root`, linear in the tangents, so it
+    transposes for reverse mode).  ``grad_fn(x, varied, fixed)`` returns
+    ``(dg/dx, dg/dvaried)``; only the leaves of ``args`` with a nonzero tangent
+    are differentiated (e.g. for ``d angle / d mu`` the law's calibration solve
+    is not)."""
+    return x
+
+
+def _implicit_root_jvp(grad_fn, primals, tangents):
+    x, args = primals
+    _, args_dot = tangents
+    is_zero = lambda t: isinstance(t, SymbolicZero)  # noqa: E731
+    varied = jax.tree.map(lambda t: not is_zero(t), args_dot, is_leaf=is_zero)
+    if not any(jax.tree.leaves(varied)):
+        return x, jnp.zeros_like(x)
+    var, fixed = eqx.partition(args, varied)
+    var_dot, _ = eqx.partition(args_dot, varied, is_leaf=is_zero)
+    dgdx, dgdv = grad_fn(x, var, fixed)
+    terms = jax.tree.leaves(jax.tree.map(lambda g, t: jnp.sum(g * t), dgdv, var_dot))
+    return x, -sum(terms) / dgdx
+
+
+_implicit_root.defjvp(_implicit_root_jvp, symbolic_zeros=True)
+
+
+def _split_indicator(x, var, fixed, static, settings, level):
+    return _indicator(x, eqx.combine(var, fixed), static, settings, level)
+
+
+_indicator_grad = eqx.filter_jit(jax.grad(_split_indicator, argnums=(0, 1)))
+
+
+def critical_angles(
+    make_scene,
+    law,
+    friction,
+    angles,
+    *,
+    settings: SolverSettings = _SETTINGS,
+    level: float | None = None,
+    xtol: float = 1e-9,
+    max_iter: int = 60,
+):
+    """Impact angles [rad] at which a frictional contact switches between
+    sliding and sticking (smooth method).
+
+    **Arguments:**
+
+    - `make_scene`: a callable ``angle -> scene`` (a planar scene, e.g.
+      ``lambda a: scenes.SphereOnIncline(m, r, ball, flat, a, h)`` or
+      ``lambda a: scenes.FreeBar(m, bar, flat, h, angle=a)``).  It may close
+      over traced values (it is closure-converted), so derivatives with respect
+      to a scene parameter flow too.
+    - `law`, `friction`: the normal law and the :class:`Friction`.
+    - `angles`: a 1-D increasing grid of angles [rad] (concrete).  Each
+      interval where the indicator changes sign holds one reported root; the
+      grid must be fine enough to separate neighbouring roots.
+    - `settings`: :class:`SolverSettings` (default ``max_steps=16384``).
+    - `level`: the switching level in slip widths (default: see below).
+    - `xtol`, `max_iter`: stopping rule of the bracketing search [rad] (the
+      indicator is noisy at ~3e-5 slip widths, ~5e-9 rad for the ball: a
+      tighter `xtol` buys nothing).
+
+    **Returns:** a 1-D array of the critical angles in increasing order (empty
+    if the indicator changes sign nowhere on the grid).
+
+    **Indicator.** In slip widths ``w = SolverSettings.slip_width``:
+    ``g = s / w - level``, positive when the contact slides:
+
+    - with a tangential approach (``v_t0 != 0``, e.g. a ball on an incline),
+      ``s = min_slip_ratio``, how close the contact point came to stopping.
+      On a ball the regularised law never lets it reverse (it approaches stick
+      exponentially), so ``s`` stays >= 0 and the switch is taken at a level
+      inside the band: for a contact whose tangential motion decouples from the
+      normal one (``J_t M^-1 J_n^T = 0``, the ball), ``dv_t/dP = -c
+      tanh(v_t / eps)`` per unit normal impulse gives ``sinh(v_t / eps) =
+      sinh(v_t0 / eps) exp(-c P / eps)``, so the smooth law ends at exactly
+      ``asinh(1/2) = 0.481`` widths when the sharp law ends at zero slip.
+      Default level: 0.481 (gravity and coupling leave an O(eps) bias).
+    - with no tangential approach (``v_t0 = 0``, e.g. a bar dropped without
+      spin, which starts stuck), ``s = final_slip_ratio``: a held contact ends
+      at ``atanh(F_needed / (mu F_n))`` widths, one that slides ends at
+      ``O(v_ref)``.  Default level: ``friction.stick_band`` (5 widths: stuck
+      while ``F_needed < tanh(5) mu F_n = 0.99991 mu F_n``).
+
+    **Differentiation.** Each root is differentiated implicitly (one
+    reverse-mode gradient of the solve at the root):
+    ``jax.grad(lambda mu: critical_angles(make, law, Friction(mu), grid)[0])``
+    works.  Not jittable (the number of roots depends on the values).
+    """
+    grid = np.asarray(angles, dtype=float)
+    if grid.ndim != 1 or grid.size < 2 or not np.all(np.diff(grid) > 0):
+        raise ValueError("`angles` must be a 1-D increasing grid of >= 2 angles")
+    example = jnp.asarray(grid[0])
+    # Closure-convert only a make_scene that closes over tracers (so their
+    # derivatives flow); a plain function stays static, which lets the
+    # compiled solve be reused across calls with the same function.
+    make = eqx.filter_closure_convert(make_scene, example)
+    if not any(isinstance(x, jax.core.Tracer) for x in jax.tree.leaves(make)):
+        make = make_scene
+    dyn, static = eqx.partition((make, law, friction), eqx.is_inexact_array)
+    dyn_c = _concrete(dyn)
+
+    def f(x):
+        return float(_indicator_jit(jnp.asarray(x), dyn_c, static, settings, level))
+
+    values = [f(a) for a in grid]
+    roots = [a for a, v in zip(grid, values, strict=True) if v == 0.0]
+    for i in range(grid.size - 1):
+        fa, fb = values[i], values[i + 1]
+        if fa * fb < 0.0:
+            roots.append(_brent(f, grid[i], grid[i + 1], fa, fb, xtol, max_iter))
+    if not roots:
+        return jnp.zeros((0,), example.dtype)
+
+    def grad_fn(x, var, fixed):
+        return _indicator_grad(x, var, fixed, static, settings, level)
+
+    return jnp.stack(
+        [
+            _implicit_root(grad_fn, jnp.asarray(x, example.dtype), dyn)
+            for x in sorted(roots)
+        ]
+    )
