@@ -16,10 +16,15 @@ powers of ``d*`` (and exponentials of powers), entire functions of ``log d*``,
 so Gauss-Legendre converges geometrically however wide ``[d_s, d_m]`` is.
 Differences of potentials are formed without cancellation (``expm1``/``log1p``
 and direct integrals over ``[d, d_m]``), so the integrand stays accurate next
-to the turning point.
+to the turning point.  The direct integrals over ``[d, d_m]`` at every node of
+the plastic loading time come from one Chebyshev interpolant of the force in
+``log d``, integrated spectrally (Clenshaw-Curtis), rather than one Gauss rule
+per node.
 """
 
 from __future__ import annotations
+
+import functools
 
 import jax
 import jax.numpy as jnp
@@ -28,10 +33,12 @@ import numpy as np
 from ._checks import require
 from ._root import newton_root
 
-# Inner Gauss order of the potential drop over [d, d_m] (measured on the
-# speed/yield grid against a tight event solve: 16 nodes give 4e-11 on the
-# loading time, 8 nodes 4e-10).
-_INNER_ORDER = 16
+# Chebyshev samples of the plastic force for its cumulative work from d to
+# d_m (see `solve_quadrature`).  Against the nested Gauss rule it replaced
+# (order x 16 force evaluations per impact, itself 4e-11 from a tight event
+# solve on the loading time) on 8,192 random impacts: 24 samples agree to
+# 5e-13, 16 to 1.6e-8.
+_CHEB_ORDER = 24
 
 
 def _gauss01(order: int):
@@ -47,7 +54,27 @@ def _log_work(force, a, log_ratio, order):
     return log_ratio * jnp.sum(jnp.asarray(w, dt) * force(x) * x)
 
 
-def _travel_time(delta, potential_drop, m, order, s_lo=0.0, s_hi=1.0):
+@functools.lru_cache(maxsize=8)
+def _cheb_cumulative(order: int):
+    """Chebyshev nodes ``tau_i`` on ``[0, 1]`` (first kind) and the matrix
+    that maps samples ``g(tau_i)`` to the Chebyshev coefficients (on ``x = 2
+    tau - 1``) of ``G(tau) = int_0^tau g``.  Spectral integration of an
+    interpolant (Clenshaw-Curtis): one set of ``order`` samples gives the
+    cumulative integral everywhere in ``[0, 1]``."""
+    x = np.cos(np.pi * (np.arange(order) + 0.5) / order)[::-1]
+    to_coef = np.linalg.inv(np.polynomial.chebyshev.chebvander(x, order - 1))
+    integrate = np.polynomial.chebyshev.chebint(to_coef, lbnd=-1.0, axis=0)
+    return 0.5 * (x + 1.0), 0.5 * integrate  # d tau = dx / 2
+
+
+def _cheb_eval(coef, tau):
+    """Chebyshev series ``sum_k coef_k T_k(2 tau - 1)`` at the points ``tau``."""
+    theta = jnp.arccos(jnp.clip(2.0 * tau - 1.0, -1.0, 1.0))
+    k = jnp.arange(coef.shape[0], dtype=tau.dtype)
+    return jnp.cos(theta[:, None] * k[None, :]) @ coef
+
+
+def _travel_time(delta, potential_drop, m, order, s_lo=0.0, s_hi=1.0, batched=False):
     """Time to travel ``d = d_end - delta s^2`` for ``s`` in ``[s_lo, s_hi]``,
     ``int dd / v = int 2 delta s / v(s) ds``, where ``v = sqrt(2 drop(s) / m)``
     and ``potential_drop(s) = U(d_end) - U(d)``.  With ``d_end`` a turning point
@@ -55,7 +82,8 @@ def _travel_time(delta, potential_drop, m, order, s_lo=0.0, s_hi=1.0):
     sigma, w = _gauss01(order)
     dt = jnp.result_type(delta, m)
     s = s_lo + (s_hi - s_lo) * jnp.asarray(sigma, dt)
-    v = jnp.sqrt(2.0 * jax.vmap(potential_drop)(s) / m)
+    drop = potential_drop(s) if batched else jax.vmap(potential_drop)(s)
+    v = jnp.sqrt(2.0 * drop / m)
     return (s_hi - s_lo) * jnp.sum(jnp.asarray(w, dt) * 2.0 * delta * s / v)
 
 
@@ -134,12 +162,22 @@ def solve_quadrature(problem, bound, settings):
         s_s = jnp.sqrt(1.0 - d_s / d_m_pl)
         w_pl_total = _log_work(f_pl, d_s, jnp.log(d_m_pl / d_s), order)
 
-        def drop_pl(s):  # d = d_m (1 - s^2) in [d_s, d_m]
-            lr = -jnp.log1p(-(s * s))  # log(d_m / d)
-            d = d_m_pl * (1.0 - s * s)
-            return _log_work(f_pl, d, lr, _INNER_ORDER) - m * g * d_m_pl * s * s
+        # Work of the plastic force from d up to d_m, needed at every node of
+        # the travel-time quadrature: one spectral cumulative integral in
+        # tau = log(d_m / d) / log(d_m / d_s) (the force is a smooth power law
+        # in log d) instead of a Gauss rule per node (order x 16 force
+        # evaluations; measured 4e-11 on the loading time, the same here).
+        dt = jnp.result_type(d_m_pl, m)
+        tau_nodes, cumulative = _cheb_cumulative(_CHEB_ORDER)
+        log_span = jnp.log(d_m_pl / d_s)
+        x = d_m_pl * jnp.exp(-jnp.asarray(tau_nodes, dt) * log_span)
+        coef = jnp.asarray(cumulative, dt) @ (f_pl(x) * x * log_span)
 
-        t_pl = _travel_time(d_m_pl, drop_pl, m, order, 0.0, s_s)
+        def drop_pl_all(s):  # d = d_m (1 - s^2) in [d_s, d_m], all nodes at once
+            tau = -jnp.log1p(-(s * s)) / log_span
+            return _cheb_eval(coef, tau) - m * g * d_m_pl * s * s
+
+        t_pl = _travel_time(d_m_pl, drop_pl_all, m, order, 0.0, s_s, batched=True)
         t_pl = jnp.where(plastic, t_pl, 0.0)
         a = jnp.where(plastic, d_s, d_m)
         s_lo = jnp.where(plastic, s_s, 0.0)
