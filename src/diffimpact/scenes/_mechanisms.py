@@ -48,7 +48,13 @@ import jax
 import jax.numpy as jnp
 from jaxtyping import Array
 
-from .._checks import as_float, require, require_nonnegative, require_positive
+from .._checks import (
+    as_float,
+    require,
+    require_finite,
+    require_nonnegative,
+    require_positive,
+)
 from .._materials import ContactProperties, Material, contact_properties
 from ._bar import FreeBar
 from ._link import optional_float
@@ -180,8 +186,21 @@ class BouncingBar(AbstractMechanism):
     cross_section_inertia: bool = eqx.field(static=True, default=False)
 
     def __check_init__(self):
-        # Same rules as the single-impact bar.
-        self.first_impact()
+        # The single-impact bar's rules, with this class's name in the messages.
+        require_positive(self.mass, "BouncingBar.mass", "kg")
+        require_positive(self.length, "BouncingBar.length", "m")
+        require_positive(self.diameter, "BouncingBar.diameter", "m")
+        if self.tip_radius is not None:
+            require_positive(self.tip_radius, "BouncingBar.tip_radius", "m")
+        require(
+            self.length,
+            self.length > 2.0 * self.radius,
+            "`BouncingBar.length` must exceed twice the tip radius",
+        )
+        a = self.angle
+        require(a, jnp.isfinite(a) & (a > 0) & (a <= jnp.pi / 2), _ANGLE)
+        require_positive(self.height, "BouncingBar.height", "m")
+        require_positive(self.gravity, "BouncingBar.gravity", "m/s^2")
 
     def first_impact(self) -> FreeBar:
         """The first impact as the single-impact scene (for
@@ -393,6 +412,8 @@ class SliderCrank(AbstractMechanism):
             require_nonnegative(self.rod_centre, "SliderCrank.rod_centre", "m")
         require_nonnegative(self.clearance, "SliderCrank.clearance", "m")
         require_nonnegative(self.gravity, "SliderCrank.gravity", "m/s^2")
+        require_finite(self.motor_torque, "SliderCrank.motor_torque")
+        require_finite(self.crank_angle, "SliderCrank.crank_angle")
         require(
             self.rod_length,
             self.rod_length > self.crank_length + self.clearance,
@@ -444,7 +465,8 @@ class SliderCrank(AbstractMechanism):
         )
 
     def ideal_piston_position(self, phi):
-        """Rigid mechanism, no clearance: ``r cos(phi) + sqrt(l^2 - r^2 sin^2(phi))``."""
+        """Rigid mechanism, no clearance [m]:
+        ``r cos(phi) + sqrt(l^2 - r^2 sin^2(phi))``."""
         r, l = self.crank_length, self.rod_length
         return r * jnp.cos(phi) + jnp.sqrt(l**2 - (r * jnp.sin(phi)) ** 2)
 
