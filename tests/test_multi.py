@@ -270,6 +270,51 @@ def test_cast_iron_first_impact_is_harder():
     )
 
 
+def test_material_pairs_over_a_span(rattling):
+    """Both bearings over the same 1 s from rest (mu = 0.1): our model gives
+    the stiffer steel/cast-iron pair higher impact peaks (as the source), by
+    about ``(K_ci / K_al)^(2/5) = 1.12`` at equal impact speeds (measured: mean
+    peak ratio 1.20, largest 1.18), but about as many impacts (45 vs 46), not
+    fewer as the source reports: with rigid bodies the rattle is set by the
+    clearance and the inertia (flight times), while the stiffness only sets
+    the contact time (``K^(-2/5)``); the source's flexible FE connecting rod,
+    ADAMS IMPACT (e = 2, c_max = 10) and unpublished dimensions are not
+    modelled (benchmarks/RESULTS.md, issue 7).  The bounds below state that
+    physics, not the measured numbers."""
+    _, al = rattling
+    _, ci = crank_run(1.0, bearing=di.Material(110e9, 0.28))
+    n_al, n_ci = int(al.impacts.count), int(ci.impacts.count)
+    assert n_al >= 10 and n_ci >= 10
+    peaks_al = np.asarray(al.impacts.peak_force[:n_al])
+    peaks_ci = np.asarray(ci.impacts.peak_force[:n_ci])
+    assert peaks_ci.max() > peaks_al.max()
+    assert peaks_ci.mean() > 1.05 * peaks_al.mean()
+    assert abs(n_ci - n_al) <= 0.25 * n_al
+    for r in (al, ci):
+        assert float(r.energy_error / r.energy_scale) < 1e-6
+
+
+@pytest.mark.slow
+def test_zero_clearance_kinematics_over_a_revolution():
+    """The rigid-mechanism check of the fast test, from four starting crank
+    angles (each run turns about 1.5 rad in 1 s), so that the whole
+    revolution is covered: 1e-6 of the stroke (measured 7.7e-7 from
+    ``phi0 = 0``: the Hertz compliance of the pin under its 0.2 N load,
+    ``(F / K)^(2/3) = 9e-8 m``)."""
+    covered = []
+    for phi0 in [1.4, 2.8, 4.2, 5.6]:
+        sc = SliderCrank(clearance=0.0, crank_angle=phi0)
+        law = di.Hertz(stiffness=sc.hertz_stiffness)
+        r = simulate_span(
+            sc, law, (0.0, 1.0), friction=di.Friction(0.1), settings=CRANK_SETTINGS
+        )
+        out = r.steps.outputs
+        e = valid(r.steps, out["piston_position"] - out["ideal_piston_position"])
+        assert np.abs(e).max() / (2.0 * float(sc.crank_length)) < 1e-6
+        covered.append(valid(r.steps, out["crank_angle"])[-1] - phi0)
+    assert min(covered) > 1.4  # 0 .. 7 rad covered with the fast test's run
+
+
 # --------------------------------------------------------------------------
 # Gradients vs central differences.
 # --------------------------------------------------------------------------
