@@ -39,6 +39,11 @@ from ._materials import Material as Material
 from ._materials import contact_properties as contact_properties
 from ._materials import effective_modulus as effective_modulus
 from ._materials import effective_radius as effective_radius
+from ._multi import SpanHistory as SpanHistory
+from ._multi import SpanImpacts as SpanImpacts
+from ._multi import SpanResult as SpanResult
+from ._multi import SpanSettings as SpanSettings
+from ._multi import simulate_span as simulate_span
 from ._observables import Experiment as Experiment
 from ._observables import predict as predict
 from ._result import History as History

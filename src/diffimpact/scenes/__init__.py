@@ -4,6 +4,10 @@ from ._bar import FreeBar as FreeBar
 from ._base import AbstractScene as AbstractScene
 from ._base import NormalProblem as NormalProblem
 from ._link import RotatingLink as RotatingLink
+from ._mechanisms import AbstractMechanism as AbstractMechanism
+from ._mechanisms import BouncingBar as BouncingBar
+from ._mechanisms import MechanismScales as MechanismScales
+from ._mechanisms import SliderCrank as SliderCrank
 from ._normal import Collinear as Collinear
 from ._normal import NormalImpact as NormalImpact
 from ._planar import AbstractPlanarScene as AbstractPlanarScene
