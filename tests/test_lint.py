@@ -1,4 +1,5 @@
-"""ruff lint and format are part of the test suite (dev extras install ruff)."""
+"""ruff lint and format are part of the test suite (dev extras install ruff);
+the notebooks' code cells are checked too."""
 
 import pathlib
 import shutil
@@ -13,7 +14,7 @@ ROOT = pathlib.Path(__file__).parent.parent
 @pytest.mark.parametrize("args", [["check"], ["format", "--check"]])
 def test_ruff(args):
     out = subprocess.run(
-        ["ruff", *args, "src", "tests", "benchmarks"],
+        ["ruff", *args, "src", "tests", "benchmarks", "notebooks"],
         cwd=ROOT,
         capture_output=True,
         text=True,
