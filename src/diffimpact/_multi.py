@@ -66,6 +66,7 @@ from ._laws._base import AbstractNormalLaw
 from ._laws._dissipative import _AbstractDampedHertz
 from ._laws._friction import Friction
 from ._smooth import safe_pow, safe_sqrt, step
+from ._solver import stored_steps_adjoint
 from .scenes._mechanisms import AbstractMechanism
 
 
@@ -737,7 +738,7 @@ def _simulate_span(scene, law, t_span, friction, settings, n_save):
         ),
         saveat=diffrax.SaveAt(subs=subs),
         max_steps=settings.max_steps,
-        adjoint=settings.adjoint,
+        adjoint=stored_steps_adjoint(settings.adjoint, settings.max_steps),
     )
     e0 = p.kinetic(q0, q_dot0) + scene.potential(q0)
 

@@ -27,7 +27,7 @@ from ._laws._dissipative import _AbstractDampedHertz
 from ._result import History, ImpactResult
 from ._root import newton_root
 from ._smooth import safe_sqrt, step
-from ._solver import SolverSettings
+from ._solver import SolverSettings, stored_steps_adjoint
 from .scenes._base import AbstractScene, NormalProblem
 
 _METHODS = ("smooth", "events", "quadrature")
@@ -174,21 +174,7 @@ def _solve(field, y0, args, settings, conds, directions, dense=False, weights=No
         def norm(err):
             return optx.rms_norm(err * keep)
 
-    # diffrax's default reverse mode stores O(log max_steps) checkpoints and
-    # re-runs the steps in between inside the backward pass.  That re-run is
-    # compiled in a different context, its rounding differs in the last bits,
-    # and at our tolerances an accept/reject decision can flip: the backward
-    # pass then differentiates a different step sequence from the one taken
-    # (measured: d v_t / d mu of a Hunt-Crossley incline 1e-3 off, varying
-    # with the checkpoint count; a vmapped forward solve took 127 steps where
-    # the plain one took 126).  Storing every step removes the re-run, costs
-    # about 170 bytes per step (measured, planar scene) and is faster.
-    adjoint = settings.adjoint
-    if (
-        type(adjoint) is diffrax.RecursiveCheckpointAdjoint
-        and adjoint.checkpoints is None
-    ):
-        adjoint = diffrax.RecursiveCheckpointAdjoint(checkpoints=settings.max_steps)
+    adjoint = stored_steps_adjoint(settings.adjoint, settings.max_steps)
     event = diffrax.Event(
         cond_fn=jax.tree.map(_default_float, conds),
         root_finder=optx.Newton(rtol=event_tol, atol=event_tol),
