@@ -125,7 +125,7 @@ class Config:
 
 
 FULL = Config(rtols=(1e-6, 1e-8, 1e-10, 1e-11, 1e-12), min_time=0.5, min_repeats=5)
-QUICK = Config(rtols=(1e-6, 1e-10), min_time=0.0, min_repeats=1)
+QUICK = Config(rtols=(1e-6, 1e-11), min_time=0.0, min_repeats=1)
 
 
 @dataclasses.dataclass(frozen=True)

@@ -381,7 +381,7 @@ def _bar_loss(p, settings):
     return jnp.stack([im.dissipated_work[0], im.velocity_after[0, 2]])
 
 
-@pytest.mark.slow
+@pytest.mark.extended
 @pytest.mark.parametrize(
     "damping, tol_height",
     [
