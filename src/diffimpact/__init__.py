@@ -51,6 +51,7 @@ from ._result import ImpactResult as ImpactResult
 from ._simulate import simulate as simulate
 from ._solver import SolverSettings as SolverSettings
 from ._sweep import grid as grid
+from ._sweep import normal_impact_row as normal_impact_row
 from ._sweep import sample as sample
 from ._sweep import sweep as sweep
 from ._sweep import sweep_map as sweep_map

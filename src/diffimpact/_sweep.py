@@ -523,3 +523,7 @@ def normal_impact(
     )
     # Only these outputs: XLA then drops the work nothing reads.
     return {name: getattr(res, name) for name in NORMAL_OUTPUTS}
+
+
+# The public name (``diffimpact.normal_impact_row``): one row of a sweep.
+normal_impact_row = normal_impact
