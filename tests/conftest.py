@@ -38,6 +38,19 @@ def rel(a, b):
     return np.abs(a - b) / np.abs(b)
 
 
+def assert_grad_matches_fd(f, p0, reference, tol=1e-5, step=1e-4):
+    """``jax.grad(f)(p0)`` (default settings) against central differences of
+    ``f(p, reference)`` (reference settings), relative step ``step`` each."""
+    g = np.asarray(jax.grad(f)(p0))
+    assert np.all(np.isfinite(g))
+    for k in range(p0.shape[0]):
+        h = step * abs(float(p0[k]))
+        e = np.zeros(p0.shape)
+        e[k] = h
+        fd = float(f(p0 + e, reference) - f(p0 - e, reference)) / (2 * h)
+        assert rel(g[k], fd) < tol, (k, g[k], fd)
+
+
 @pytest.fixture(autouse=True, scope="session")
 def _x64():
     assert jax.config.jax_enable_x64, "diffimpact must enable float64 on import"

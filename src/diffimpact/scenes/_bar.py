@@ -24,6 +24,25 @@ _ANGLE = "`FreeBar.angle` must lie in (0, pi/2] rad"
 _HEIGHT = "`FreeBar.height` (a drop height <= 0 gives no contact) must be > 0 in m"
 
 
+def check_bar_fields(bar, name: str):
+    """The rules every rod with a hemispherical tip obeys (mass, length,
+    diameter, tip radius, angle, gravity), named after the scene class."""
+    require_positive(bar.mass, f"{name}.mass", "kg")
+    require_positive(bar.length, f"{name}.length", "m")
+    require_positive(bar.diameter, f"{name}.diameter", "m")
+    if bar.tip_radius is not None:
+        require_positive(bar.tip_radius, f"{name}.tip_radius", "m")
+    require(
+        bar.length,
+        bar.length > 2.0 * bar.radius,
+        f"`{name}.length` must exceed twice the tip radius",
+    )
+    a = bar.angle
+    ok = jnp.isfinite(a) & (a > 0) & (a <= jnp.pi / 2)
+    require(a, ok, f"`{name}.angle` must lie in (0, pi/2] rad")
+    require_positive(bar.gravity, f"{name}.gravity", "m/s^2")
+
+
 class FreeBar(AbstractPlanarScene):
     """A planar rigid rod falling without spin onto a fixed horizontal flat,
     striking it with the hemispherical tip of its lower end (data.md B;
@@ -93,21 +112,9 @@ class FreeBar(AbstractPlanarScene):
     cross_section_inertia: bool = eqx.field(static=True, default=False)
 
     def __check_init__(self):
-        require_positive(self.mass, "FreeBar.mass", "kg")
-        require_positive(self.length, "FreeBar.length", "m")
-        require_positive(self.diameter, "FreeBar.diameter", "m")
-        if self.tip_radius is not None:
-            require_positive(self.tip_radius, "FreeBar.tip_radius", "m")
-        require(
-            self.length,
-            self.length > 2.0 * self.radius,
-            "`FreeBar.length` must exceed twice the tip radius",
-        )
-        a = self.angle
-        require(a, jnp.isfinite(a) & (a > 0) & (a <= jnp.pi / 2), _ANGLE)
+        check_bar_fields(self, "FreeBar")
         h = self.height
         require(h, jnp.isfinite(h) & (h > 0), _HEIGHT)
-        require_positive(self.gravity, "FreeBar.gravity", "m/s^2")
 
     @property
     def radius(self):

@@ -56,7 +56,7 @@ from .._checks import (
     require_positive,
 )
 from .._materials import ContactProperties, Material, contact_properties
-from ._bar import FreeBar
+from ._bar import FreeBar, check_bar_fields
 from ._link import optional_float
 
 
@@ -187,20 +187,8 @@ class BouncingBar(AbstractMechanism):
 
     def __check_init__(self):
         # The single-impact bar's rules, with this class's name in the messages.
-        require_positive(self.mass, "BouncingBar.mass", "kg")
-        require_positive(self.length, "BouncingBar.length", "m")
-        require_positive(self.diameter, "BouncingBar.diameter", "m")
-        if self.tip_radius is not None:
-            require_positive(self.tip_radius, "BouncingBar.tip_radius", "m")
-        require(
-            self.length,
-            self.length > 2.0 * self.radius,
-            "`BouncingBar.length` must exceed twice the tip radius",
-        )
-        a = self.angle
-        require(a, jnp.isfinite(a) & (a > 0) & (a <= jnp.pi / 2), _ANGLE)
+        check_bar_fields(self, "BouncingBar")
         require_positive(self.height, "BouncingBar.height", "m")
-        require_positive(self.gravity, "BouncingBar.gravity", "m/s^2")
 
     def first_impact(self) -> FreeBar:
         """The first impact as the single-impact scene (for
