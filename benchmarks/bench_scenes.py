@@ -69,8 +69,8 @@ import scipy
 from scipy.integrate import solve_ivp
 
 import diffimpact as di
-from diffimpact._planar_solve import _Planar, _planar_field, _separation
-from diffimpact._simulate import _bind, _scales, _y0
+from diffimpact._planar_solve import _Planar, _planar_field, _separation, planar_setup
+from diffimpact._simulate import _bind, _y0
 from diffimpact.scenes._base import NormalProblem
 
 matplotlib.use("Agg")
@@ -359,52 +359,14 @@ class PlanarProblem:
 
 
 def planar_problem(scene, law, friction, settings: di.SolverSettings) -> PlanarProblem:
-    """The set-up of ``diffimpact._planar_solve.solve_planar`` (copied, for a
-    law without a running peak force, i.e. not rate-dependent)."""
-    q0, q_dot0 = scene.initial_state()
-    n = q0.shape[0]
-    inv_mass = 1.0 / scene.mass_diagonal()
-    _, j_n0, j_t0 = scene.kinematics(q0)
-    v0 = j_n0 @ q_dot0
-    v_t0 = j_t0 @ q_dot0
-    push = -jnp.sum(j_t0 * inv_mass * j_n0)
-    slip_sign = jnp.where(
-        v_t0 != 0, jnp.sign(v_t0), jnp.where(push != 0, jnp.sign(push), 1.0)
-    )
-    normal_mass = 1.0 / jnp.sum(j_n0**2 * inv_mass)
-    problem = NormalProblem(
-        mass=normal_mass,
-        contact=scene.contact(),
-        velocity=v0,
-        gravity=jnp.zeros_like(v0),
-    )
-    bound = _bind(law, problem)
-    if bound.rate_dependent:
-        raise NotImplementedError("this copy of the set-up has no peak-force state")
-    sc = _scales(problem, bound)
-    scale_q = sc.length / jnp.maximum(jnp.maximum(jnp.abs(j_n0), jnp.abs(j_t0)), 1e-12)
-    args = _Planar(
-        scene=scene,
-        bound=bound,
-        friction=friction,
-        sc=sc,
-        q0=q0,
-        scale_q=scale_q,
-        inv_mass=inv_mass,
-        gravity=scene.generalized_gravity(),
-        v0=v0,
-        impulse_unit=normal_mass * v0,
-        work_unit=normal_mass * v0**2,
-        slip_sign=slip_sign,
-        settings=settings,
-    )
-    has_friction = friction is not None
-    i_slip = 2 * n + 2  # running minimum slip ratio (with friction)
-    n_extra = 2 + (1 if has_friction else 0) + 6
-    y0 = jnp.concatenate([jnp.zeros(n), q_dot0 * sc.time / scale_q, jnp.zeros(n_extra)])
-    if has_friction:
-        y0 = y0.at[i_slip].set(slip_sign * v_t0 / v0)
-    unchecked = (i_slip,) if has_friction else ()
+    """The set-up of ``diffimpact._planar_solve.solve_planar`` (its own
+    ``planar_setup``), for a law without a running peak force."""
+    args, y0, weights = planar_setup(scene, law, friction, settings)
+    if args.bound.rate_dependent:
+        raise NotImplementedError(
+            "the peak-force state is error-weighted, not left out"
+        )
+    unchecked = tuple(i for i, w in weights.items() if w == 0.0)
     return PlanarProblem(args, y0, unchecked, settings.max_time)
 
 

@@ -145,7 +145,10 @@ def _separation(t, y, p: _Planar, **kw):
     return (d - d_r) / p.sc.length
 
 
-def solve_planar(scene, law, friction, settings):
+def planar_setup(scene, law, friction, settings):
+    """The planar problem at first contact: ``(args, y0, weights)`` for
+    ``_solve(_planar_field, y0, args, ..., weights=weights)`` (also used by
+    benchmarks/bench_scenes.py to hand scipy exactly the same problem)."""
     q0, q_dot0 = scene.initial_state()
     n = q0.shape[0]
     inv_mass = 1.0 / scene.mass_diagonal()
@@ -211,6 +214,19 @@ def solve_planar(scene, law, friction, settings):
         weights[hist + 2] = _PEAK_ERROR_WEIGHT
     if has_friction:
         weights[i_slip] = 0.0
+    return p, y0, weights
+
+
+def solve_planar(scene, law, friction, settings):
+    p, y0, weights = planar_setup(scene, law, friction, settings)
+    n, sc, bound = p.n, p.sc, p.bound
+    hist = 2 * n  # index of x_m
+    i_slip = hist + 2 + (1 if bound.rate_dependent else 0)  # s_min, if any
+    t_unit, impulse_unit, work_unit = sc.time, p.impulse_unit, p.work_unit
+    q0, q_dot0 = scene.initial_state()
+    _, j_n0, j_t0 = scene.kinematics(q0)
+    v0, v_t0, slip_sign = p.v0, j_t0 @ q_dot0, p.slip_sign
+    has_friction = friction is not None
     sol = _solve(_planar_field, y0, p, settings, _separation, False, weights=weights)
     tau_end = _check_event(sol, "separation", settings)
     y = sol.ys[-1]
