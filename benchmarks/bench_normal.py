@@ -24,10 +24,7 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
-import datetime
 import math
-import os
-import platform
 import statistics
 import time
 from collections.abc import Callable, Sequence
@@ -38,7 +35,7 @@ import jax
 import jax.numpy as jnp
 import matplotlib
 import numpy as np
-import scipy
+from _report import machine_line, markdown_table
 from scipy.integrate import solve_ivp
 
 import diffimpact as di
@@ -540,21 +537,6 @@ def bench_gradients(config: Config) -> list[list]:
 # --------------------------------------------------------------------------
 
 
-def markdown_table(headers: Sequence[str], rows: Sequence[Sequence[str]]) -> str:
-    """A markdown table with padded columns."""
-    widths = [max(len(str(x)) for x in col) for col in zip(headers, *rows, strict=True)]
-
-    def line(cells):
-        return (
-            "| "
-            + " | ".join(str(c).ljust(w) for c, w in zip(cells, widths, strict=True))
-            + " |"
-        )
-
-    sep = "|" + "|".join("-" * (w + 2) for w in widths) + "|"
-    return "\n".join([line(headers), sep, *(line(r) for r in rows)])
-
-
 def single_table(rows: Sequence[Row]) -> str:
     """The single-impact table."""
     headers = (
@@ -577,18 +559,6 @@ def single_table(rows: Sequence[Row]) -> str:
         for r in rows
     ]
     return markdown_table(headers, cells)
-
-
-def machine_line() -> str:
-    """Platform, CPU count, library versions and date."""
-    devices = ", ".join(sorted({d.platform for d in jax.devices()}))
-    return (
-        f"machine: {platform.platform()} ({platform.machine()}), "
-        f"{os.cpu_count()} CPUs, jax {jax.__version__} on {devices}, "
-        f"diffrax {diffrax.__version__}, scipy {scipy.__version__}, "
-        f"numpy {np.__version__}, python {platform.python_version()}, "
-        f"{datetime.datetime.now().isoformat(timespec='seconds')}"
-    )
 
 
 def plot_work_precision(rows: Sequence[Row], path: Path) -> None:

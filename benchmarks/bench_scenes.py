@@ -48,11 +48,9 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
-import datetime
 import logging
 import math
 import os
-import platform
 import re
 import statistics
 import time
@@ -65,7 +63,7 @@ import jax.numpy as jnp
 import matplotlib
 import numpy as np
 import optimistix as optx
-import scipy
+from _report import machine_line, markdown_table
 from scipy.integrate import solve_ivp
 
 import diffimpact as di
@@ -844,21 +842,6 @@ def bench_approach(
 # --------------------------------------------------------------------------
 
 
-def markdown_table(headers: Sequence[str], rows: Sequence[Sequence[str]]) -> str:
-    """A markdown table with padded columns."""
-    widths = [max(len(str(x)) for x in col) for col in zip(headers, *rows, strict=True)]
-
-    def line(cells):
-        return (
-            "| "
-            + " | ".join(str(c).ljust(w) for c, w in zip(cells, widths, strict=True))
-            + " |"
-        )
-
-    sep = "|" + "|".join("-" * (w + 2) for w in widths) + "|"
-    return "\n".join([line(headers), sep, *(line(r) for r in rows)])
-
-
 def is_simulate(row: Row) -> bool:
     """A row of ``di.simulate`` with a ``SolverSettings`` solver."""
     return row.family in {f"diffrax {name}" for name in DIFFRAX_SOLVERS}
@@ -946,18 +929,6 @@ def pareto(rows: Sequence[Row], timing: str = "seconds") -> list[Row]:
 def describe(row: Row, timing: str = "seconds") -> str:
     seconds = getattr(row, timing)
     return f"{row.family} {row.rtol:.0e} ({1e6 * seconds:.0f} us, {row.error:.1e})"
-
-
-def machine_line() -> str:
-    """Platform, CPU count, library versions and date."""
-    devices = ", ".join(sorted({d.platform for d in jax.devices()}))
-    return (
-        f"machine: {platform.platform()} ({platform.machine()}), "
-        f"{os.cpu_count()} CPUs, jax {jax.__version__} on {devices}, "
-        f"diffrax {diffrax.__version__}, scipy {scipy.__version__}, "
-        f"numpy {np.__version__}, python {platform.python_version()}, "
-        f"{datetime.datetime.now().isoformat(timespec='seconds')}"
-    )
 
 
 def plot_work_precision(cases: Sequence[Case], rows: Sequence[Row], path: Path):
