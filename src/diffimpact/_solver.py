@@ -23,8 +23,12 @@ class SolverSettings(eqx.Module):
     - `rtol`, `atol`: step-size controller tolerances on the scaled state.  The
       default 1e-11 is set by the gradients, not the values: values agree with
       the exact solution to ~1e-7 already at 1e-8, but the derivative of the
-      discretised solve converges more slowly; at 1e-10 the worst gradient
-      error seen was 2e-5, at 1e-11 it is 5e-7 (tests/test_gradients.py).
+      discretised solve converges more slowly (Dopri8, normal impact: gradient
+      error 5.2e-5 at 1e-8, 2.4e-7 at 1e-10, 1.6e-7 at 1e-11;
+      benchmarks/bench_gradient_precision.py).  On the planar scenes the
+      default is on the measured Pareto front of Tsit5/Dopri5/Dopri8; on the
+      1-DOF normal impact Tsit5 at 1e-12 is cheaper for the same accuracy
+      (benchmarks/RESULTS.md), and ``method="quadrature"`` beats both.
     - `velocity_width`: width of the smooth loading/unloading indicator, as a
       fraction of the approach speed ``v0``.
     - `phase_width`: width of the smooth elastic/elasto-plastic indicator, in
