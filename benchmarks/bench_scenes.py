@@ -324,21 +324,24 @@ def bench_diffrax(
                     )
                     progress(rows[-1])
                     continue
-                error, worst = max_relative_error(out, refs[case.key])
-                rows.append(
-                    Row(
-                        case.key,
-                        family,
-                        rtol,
-                        statistics.median(times),
-                        error,
-                        worst,
-                        steps=int(out["num_steps"]),
-                        fastest=min(times),
-                    )
-                )
+                rows.append(measured_row(case, family, rtol, out, times, refs))
                 progress(rows[-1])
     return rows
+
+
+def measured_row(case, family, rtol, out, times, refs) -> Row:
+    """A successful solve's row: timings, error against the reference, steps."""
+    error, worst = max_relative_error(out, refs[case.key])
+    return Row(
+        case.key,
+        family,
+        rtol,
+        statistics.median(times),
+        error,
+        worst,
+        steps=int(out["num_steps"]),
+        fastest=min(times),
+    )
 
 
 # --------------------------------------------------------------------------
@@ -436,19 +439,7 @@ def bench_kvaerno_plain(
                 )
                 rows.append(Row(case.key, family, rtol, None, None, note=note))
             else:
-                error, worst = max_relative_error(out, refs[case.key])
-                rows.append(
-                    Row(
-                        case.key,
-                        family,
-                        rtol,
-                        statistics.median(times),
-                        error,
-                        worst,
-                        steps=int(out["num_steps"]),
-                        fastest=min(times),
-                    )
-                )
+                rows.append(measured_row(case, family, rtol, out, times, refs))
             progress(rows[-1])
     return rows
 
