@@ -24,26 +24,59 @@ _ANGLE = "`FreeBar.angle` must lie in (0, pi/2] rad"
 _HEIGHT = "`FreeBar.height` (a drop height <= 0 gives no contact) must be > 0 in m"
 
 
-def check_bar_fields(bar, name: str):
-    """The rules every rod with a hemispherical tip obeys (mass, length,
-    diameter, tip radius, angle, gravity), named after the scene class."""
-    require_positive(bar.mass, f"{name}.mass", "kg")
-    require_positive(bar.length, f"{name}.length", "m")
-    require_positive(bar.diameter, f"{name}.diameter", "m")
-    if bar.tip_radius is not None:
-        require_positive(bar.tip_radius, f"{name}.tip_radius", "m")
-    require(
-        bar.length,
-        bar.length > 2.0 * bar.radius,
-        f"`{name}.length` must exceed twice the tip radius",
-    )
-    a = bar.angle
-    ok = jnp.isfinite(a) & (a > 0) & (a <= jnp.pi / 2)
-    require(a, ok, f"`{name}.angle` must lie in (0, pi/2] rad")
-    require_positive(bar.gravity, f"{name}.gravity", "m/s^2")
+class AbstractRod(eqx.Module):
+    """Fields, checks and geometry of a rigid rod with hemispherical ends,
+    shared by :class:`FreeBar` (one impact) and
+    :class:`diffimpact.scenes.BouncingBar` (a span of impacts)."""
+
+    mass: Array = eqx.field(converter=as_float)
+    body: Material
+    flat: Material
+    height: Array = eqx.field(converter=as_float)
+    length: Array = eqx.field(converter=as_float, default=0.08)
+    diameter: Array = eqx.field(converter=as_float, default=0.01)
+    angle: Array = eqx.field(converter=as_float, default=math.pi / 4)
+    tip_radius: Array | None = eqx.field(converter=optional_float, default=None)
+    gravity: Array = eqx.field(converter=as_float, default=9.81)
+    cross_section_inertia: bool = eqx.field(static=True, default=False)
+
+    def _check_rod(self, name: str):
+        """The rules every such rod obeys, named after the scene class."""
+        require_positive(self.mass, f"{name}.mass", "kg")
+        require_positive(self.length, f"{name}.length", "m")
+        require_positive(self.diameter, f"{name}.diameter", "m")
+        if self.tip_radius is not None:
+            require_positive(self.tip_radius, f"{name}.tip_radius", "m")
+        require(
+            self.length,
+            self.length > 2.0 * self.radius,
+            f"`{name}.length` must exceed twice the tip radius",
+        )
+        a = self.angle
+        ok = jnp.isfinite(a) & (a > 0) & (a <= jnp.pi / 2)
+        require(a, ok, f"`{name}.angle` must lie in (0, pi/2] rad")
+        require_positive(self.gravity, f"{name}.gravity", "m/s^2")
+
+    @property
+    def radius(self):
+        """Tip radius ``R_b`` [m]."""
+        return 0.5 * self.diameter if self.tip_radius is None else self.tip_radius
+
+    @property
+    def arm(self):
+        """``l = L/2 - R_b``: centre of mass to the centre of the tip [m]."""
+        return 0.5 * self.length - self.radius
+
+    @property
+    def inertia(self):
+        """``m L^2 / 12`` about the centre of mass [kg m^2] (+ ``m D^2 / 16``)."""
+        i = self.mass * self.length**2 / 12.0
+        if self.cross_section_inertia:
+            i = i + self.mass * self.diameter**2 / 16.0
+        return i
 
 
-class FreeBar(AbstractPlanarScene):
+class FreeBar(AbstractRod, AbstractPlanarScene):
     """A planar rigid rod falling without spin onto a fixed horizontal flat,
     striking it with the hemispherical tip of its lower end (data.md B;
     physics.md section 6).
@@ -100,39 +133,10 @@ class FreeBar(AbstractPlanarScene):
     (contact point).
     """
 
-    mass: Array = eqx.field(converter=as_float)
-    body: Material
-    flat: Material
-    height: Array = eqx.field(converter=as_float)
-    length: Array = eqx.field(converter=as_float, default=0.08)
-    diameter: Array = eqx.field(converter=as_float, default=0.01)
-    angle: Array = eqx.field(converter=as_float, default=math.pi / 4)
-    tip_radius: Array | None = eqx.field(converter=optional_float, default=None)
-    gravity: Array = eqx.field(converter=as_float, default=9.81)
-    cross_section_inertia: bool = eqx.field(static=True, default=False)
-
     def __check_init__(self):
-        check_bar_fields(self, "FreeBar")
+        self._check_rod("FreeBar")
         h = self.height
         require(h, jnp.isfinite(h) & (h > 0), _HEIGHT)
-
-    @property
-    def radius(self):
-        """Tip radius ``R_b`` [m]."""
-        return 0.5 * self.diameter if self.tip_radius is None else self.tip_radius
-
-    @property
-    def arm(self):
-        """``l = L/2 - R_b``: centre of mass to the centre of the tip [m]."""
-        return 0.5 * self.length - self.radius
-
-    @property
-    def inertia(self):
-        """``m L^2 / 12`` about the centre of mass [kg m^2] (+ ``m D^2 / 16``)."""
-        i = self.mass * self.length**2 / 12.0
-        if self.cross_section_inertia:
-            i = i + self.mass * self.diameter**2 / 16.0
-        return i
 
     @property
     def impact_speed(self):

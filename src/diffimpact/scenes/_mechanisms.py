@@ -56,7 +56,7 @@ from .._checks import (
     require_positive,
 )
 from .._materials import ContactProperties, Material, contact_properties
-from ._bar import FreeBar, check_bar_fields
+from ._bar import AbstractRod, FreeBar
 from ._link import optional_float
 
 
@@ -129,7 +129,7 @@ class AbstractMechanism(eqx.Module):
 _ANGLE = "`BouncingBar.angle` must lie in (0, pi/2] rad"
 
 
-class BouncingBar(AbstractMechanism):
+class BouncingBar(AbstractRod, AbstractMechanism):
     """A free rigid bar with hemispherical ends dropped onto a flat board under
     gravity, bouncing until it settles (source: Constantin et al. 2022, section
     2.1, the bar on the flat board; data.md D; physics.md section 6).
@@ -174,20 +174,9 @@ class BouncingBar(AbstractMechanism):
     ``height`` (``y``) and ``mechanical_energy``.
     """
 
-    mass: Array = eqx.field(converter=as_float)
-    body: Material
-    flat: Material
-    height: Array = eqx.field(converter=as_float)
-    length: Array = eqx.field(converter=as_float, default=0.08)
-    diameter: Array = eqx.field(converter=as_float, default=0.01)
-    angle: Array = eqx.field(converter=as_float, default=math.pi / 4)
-    tip_radius: Array | None = eqx.field(converter=optional_float, default=None)
-    gravity: Array = eqx.field(converter=as_float, default=9.81)
-    cross_section_inertia: bool = eqx.field(static=True, default=False)
-
     def __check_init__(self):
         # The single-impact bar's rules, with this class's name in the messages.
-        check_bar_fields(self, "BouncingBar")
+        self._check_rod("BouncingBar")
         require_positive(self.height, "BouncingBar.height", "m")
 
     def first_impact(self) -> FreeBar:
@@ -205,24 +194,6 @@ class BouncingBar(AbstractMechanism):
             gravity=self.gravity,
             cross_section_inertia=self.cross_section_inertia,
         )
-
-    @property
-    def radius(self):
-        """End radius ``R_b`` [m]."""
-        return 0.5 * self.diameter if self.tip_radius is None else self.tip_radius
-
-    @property
-    def arm(self):
-        """``l = L/2 - R_b`` [m]."""
-        return 0.5 * self.length - self.radius
-
-    @property
-    def inertia(self):
-        """``m L^2 / 12`` [kg m^2] (``+ m D^2 / 16`` with cross_section_inertia)."""
-        i = self.mass * self.length**2 / 12.0
-        if self.cross_section_inertia:
-            i = i + self.mass * self.diameter**2 / 16.0
-        return i
 
     def initial_state(self):
         a = require(
