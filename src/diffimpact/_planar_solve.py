@@ -68,6 +68,7 @@ class _Planar(eqx.Module):
     impulse_unit: jax.Array
     work_unit: jax.Array
     slip_sign: jax.Array
+    v_t0: jax.Array
     settings: object = eqx.field(static=True)
 
     @property
@@ -189,6 +190,7 @@ def planar_setup(scene, law, friction, settings):
         impulse_unit=impulse_unit,
         work_unit=work_unit,
         slip_sign=slip_sign,
+        v_t0=v_t0,
         settings=settings,
     )
     has_friction = friction is not None
@@ -223,9 +225,7 @@ def solve_planar(scene, law, friction, settings):
     hist = 2 * n  # index of x_m
     i_slip = hist + 2 + (1 if bound.rate_dependent else 0)  # s_min, if any
     t_unit, impulse_unit, work_unit = sc.time, p.impulse_unit, p.work_unit
-    q0, q_dot0 = scene.initial_state()
-    _, j_n0, j_t0 = scene.kinematics(q0)
-    v0, v_t0, slip_sign = p.v0, j_t0 @ q_dot0, p.slip_sign
+    v0, v_t0, slip_sign = p.v0, p.v_t0, p.slip_sign
     has_friction = friction is not None
     sol = _solve(_planar_field, y0, p, settings, _separation, False, weights=weights)
     tau_end = _check_event(sol, "separation", settings)
