@@ -68,13 +68,13 @@ def _cheb_cumulative(order: int):
 
 
 def _cheb_eval(coef, tau):
-    """Chebyshev series ``sum_k coef_k T_k(2 tau - 1)`` at the points ``tau``."""
+    """Chebyshev series ``sum_k coef_k T_k(2 tau - 1)`` at ``tau``."""
     theta = jnp.arccos(jnp.clip(2.0 * tau - 1.0, -1.0, 1.0))
-    k = jnp.arange(coef.shape[0], dtype=tau.dtype)
-    return jnp.cos(theta[:, None] * k[None, :]) @ coef
+    k = jnp.arange(coef.shape[0], dtype=theta.dtype)
+    return jnp.cos(theta[..., None] * k) @ coef
 
 
-def _travel_time(delta, potential_drop, m, order, s_lo=0.0, s_hi=1.0, batched=False):
+def _travel_time(delta, potential_drop, m, order, s_lo=0.0, s_hi=1.0):
     """Time to travel ``d = d_end - delta s^2`` for ``s`` in ``[s_lo, s_hi]``,
     ``int dd / v = int 2 delta s / v(s) ds``, where ``v = sqrt(2 drop(s) / m)``
     and ``potential_drop(s) = U(d_end) - U(d)``.  With ``d_end`` a turning point
@@ -82,8 +82,7 @@ def _travel_time(delta, potential_drop, m, order, s_lo=0.0, s_hi=1.0, batched=Fa
     sigma, w = _gauss01(order)
     dt = jnp.result_type(delta, m)
     s = s_lo + (s_hi - s_lo) * jnp.asarray(sigma, dt)
-    drop = potential_drop(s) if batched else jax.vmap(potential_drop)(s)
-    v = jnp.sqrt(2.0 * drop / m)
+    v = jnp.sqrt(2.0 * jax.vmap(potential_drop)(s) / m)
     return (s_hi - s_lo) * jnp.sum(jnp.asarray(w, dt) * 2.0 * delta * s / v)
 
 
@@ -173,11 +172,11 @@ def solve_quadrature(problem, bound, settings):
         x = d_m_pl * jnp.exp(-jnp.asarray(tau_nodes, dt) * log_span)
         coef = jnp.asarray(cumulative, dt) @ (f_pl(x) * x * log_span)
 
-        def drop_pl_all(s):  # d = d_m (1 - s^2) in [d_s, d_m], all nodes at once
+        def drop_pl(s):  # d = d_m (1 - s^2) in [d_s, d_m]
             tau = -jnp.log1p(-(s * s)) / log_span
             return _cheb_eval(coef, tau) - m * g * d_m_pl * s * s
 
-        t_pl = _travel_time(d_m_pl, drop_pl_all, m, order, 0.0, s_s, batched=True)
+        t_pl = _travel_time(d_m_pl, drop_pl, m, order, 0.0, s_s)
         t_pl = jnp.where(plastic, t_pl, 0.0)
         a = jnp.where(plastic, d_s, d_m)
         s_lo = jnp.where(plastic, s_s, 0.0)
