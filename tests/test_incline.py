@@ -125,9 +125,10 @@ def test_friction_gradient_matches_routh_derivative():
     [
         (di.HuntCrossley(cor=0.7), 0.051),
         (di.HuntCrossley(cor=0.7), 0.06),
+        (di.HuntCrossley(cor=0.7, calibrated=True), 0.05),
         (di.Flores(cor=0.7), 0.051),
     ],
-    ids=["HC-0.051", "HC-0.06", "Flores-0.051"],
+    ids=["HC-0.051", "HC-0.06", "HC-calibrated-0.05", "Flores-0.051"],
 )
 def test_friction_gradient_dissipative_laws(law, mu):
     """With friction, d v_t / d mu of the Hunt-Crossley family matches central
