@@ -28,14 +28,14 @@ from jax.custom_derivatives import SymbolicZero
 from ._simulate import simulate
 from ._solver import SolverSettings
 
-# Friction scenes need a larger step budget (stick is stiff for an explicit
-# solver; ~3,500 steps for a ball that ends rolling).
-_SETTINGS = SolverSettings(max_steps=16384)
+_SETTINGS = SolverSettings()
 
 # Level (in slip widths) at which a contact *with* tangential approach is taken
-# to switch: the smooth law ends at asinh(1/2) widths exactly when the sharp law
-# ends at zero slip (docstring of `critical_angles`).
-_LEVEL_SLIDING = math.asinh(0.5)
+# to switch: the exact-hold law ends at 1/e widths when the sharp law ends at
+# zero slip (docstring of `critical_angles`; the law's corner rounding and dead
+# zone move it to 0.368058, 1.8e-4 widths: ~3e-8 rad on the ball, 1 % of the
+# measured distance to the sharp law's angle).
+_LEVEL_SLIDING = math.exp(-1.0)
 
 
 def _indicator(angle, dyn, static, settings, level):
@@ -167,7 +167,7 @@ def critical_angles(
     - `angles`: a 1-D increasing grid of angles [rad] (concrete).  Each
       interval where the indicator changes sign holds one reported root; the
       grid must be fine enough to separate neighbouring roots.
-    - `settings`: :class:`SolverSettings` (default ``max_steps=16384``).
+    - `settings`: :class:`SolverSettings` (default: the defaults).
     - `level`: the switching level in slip widths (default: see below).
     - `xtol`, `max_iter`: stopping rule of the bracketing search [rad] (the
       indicator is noisy at ~3e-5 slip widths, ~5e-9 rad for the ball: a
@@ -184,16 +184,15 @@ def critical_angles(
       On a ball the regularised law never lets it reverse (it approaches stick
       exponentially), so ``s`` stays >= 0 and the switch is taken at a level
       inside the band: for a contact whose tangential motion decouples from the
-      normal one (``J_t M^-1 J_n^T = 0``, the ball), ``dv_t/dP = -c
-      tanh(v_t / eps)`` per unit normal impulse gives ``sinh(v_t / eps) =
-      sinh(v_t0 / eps) exp(-c P / eps)``, so the smooth law ends at exactly
-      ``asinh(1/2) = 0.481`` widths when the sharp law ends at zero slip.
-      Default level: 0.481 (gravity and coupling leave an O(eps) bias).
+      normal one (``J_t M^-1 J_n^T = 0``, the ball), the exact-hold law of
+      :class:`Friction` is full Coulomb down to ``|v_t| = eps`` and linear
+      below, ``dv_t/dP = -c v_t / eps`` per unit normal impulse, so where the
+      sharp law ends at zero slip the smooth one ends at ``exp(-1)`` widths.
+      Default level: 0.368 (gravity and coupling leave an O(eps) bias).
     - with no tangential approach (``v_t0 = 0``, e.g. a bar dropped without
       spin, which starts stuck), ``s = final_slip_ratio``: a held contact ends
-      at ``atanh(F_needed / (mu F_n))`` widths, one that slides ends at
-      ``O(v_ref)``.  Default level: ``friction.stick_band`` (5 widths: stuck
-      while ``F_needed < tanh(5) mu F_n = 0.99991 mu F_n``).
+      at rest (exact hold), one that slides ends at ``O(v_ref)``.  Default
+      level: ``friction.stick_band`` (5 widths).
 
     **Differentiation.** Each root is differentiated implicitly (one
     reverse-mode gradient of the solve at the root):

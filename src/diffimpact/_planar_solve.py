@@ -9,8 +9,9 @@ the normal problem with the effective normal mass ``1 / (J_n M^-1 J_n^T)``):
 
 with ``S_i = d_ref / max(|J_n,i|, |J_t,i|)`` so that every coordinate moves
 O(1) during the contact.  The normal force is the same smooth-switched law as
-the 1-DOF path (``_simulate._smooth_force``); friction is F-1 with a smooth
-sign (or F-2, see :class:`Friction`).
+the 1-DOF path (``_simulate._smooth_force``); friction (F-1 or F-2) is the
+exact-hold law of :class:`Friction`, fed with the scene's holding force
+(:meth:`_Planar.holding_force`).
 
 Slip classification (with friction only): ``s(t) = sigma v_t(t) / v_ref`` is the
 signed slip ratio of the contact point, ``v_ref`` the normal approach speed and
@@ -87,8 +88,18 @@ class _Planar(eqx.Module):
             f_t = jnp.zeros_like(f_n)
         else:
             width = self.settings.slip_width * self.v0
-            f_t = self.friction.force(f_n, v_t, width)
+            hold = self.holding_force(q, q_dot, j_n, j_t, f_n)
+            f_t = self.friction.force(f_n, v_t, width, holding_force=hold)
         return q, q_dot, d, j_n, j_t, v_n, v_t, f_n, f_t
+
+    def holding_force(self, q, q_dot, j_n, j_t, f_n):
+        """The tangential force that keeps the slip velocity constant:
+        ``dv_t/dt = J_t M^-1 (-J_n^T F_n + J_t^T F_t + g) + (dJ_t/dt) q_dot = 0``
+        solved for ``F_t`` (the mass matrix is diagonal and ``J_t M^-1 J_t^T >
+        0``), the input of the exact-hold friction law (:class:`Friction`)."""
+        j_t_dot = jax.jvp(lambda qq: self.scene.kinematics(qq)[2], (q,), (q_dot,))[1]
+        free = j_t @ ((self.gravity - j_n * f_n) * self.inv_mass) + j_t_dot @ q_dot
+        return -free / (j_t @ (j_t * self.inv_mass))
 
 
 def _planar_field(t, y, p: _Planar):

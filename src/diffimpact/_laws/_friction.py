@@ -5,6 +5,7 @@ from __future__ import annotations
 import math
 
 import equinox as eqx
+import jax
 import jax.numpy as jnp
 from jaxtyping import Array
 
@@ -14,21 +15,96 @@ from .._checks import as_float, require, require_nonnegative
 # tanh(v_t / eps) > 0.9999, the friction force is fully mobilised (sliding).
 _COULOMB_BAND = 5.0
 
+# Exact-hold friction (``Friction.force`` with a holding force; module
+# docstring of ``_planar_solve``):
+# - corner rounding of the smooth saturation ``S`` (fraction of the capacity):
+#   ``S(z) = z`` to ``delta exp(-(1 - |z|) / delta)`` inside, so a contact
+#   needing 0.95 of its capacity is held with an error of 2e-5 of it;
+_HOLD_CORNER = 0.01
+# - extra gain on the slip beyond the capacity, so that a contact that cannot be
+#   held (``|u| > 1``) reverses within ~``u / (1 + K (|u| - 1))`` slip widths
+#   of ``v_t = 0`` (sharp Coulomb: at 0) rather than ``u`` widths away;
+_HOLD_EXCESS_GAIN = 10.0
+# - dead zone of the restoring slip, in slip widths: the law pulls a slipping
+#   contact back to rest with ``x^3 / (x^2 + x0^2)`` instead of ``x``, so a
+#   held contact is not a stiff linear mode (an explicit solver would run at
+#   its stability limit over the whole stick, and the sensitivities of that
+#   mode, never excited in the solution itself, grew to 1e143); residual slip
+#   then decays like ``x0 / sqrt(t)`` from ``x0``;
+_HOLD_DEAD_ZONE = 0.01
+# - saturation input clipped to +-10: ``S`` is flat to 1e-300 well before that,
+#   and the clip keeps ``z - delta softplus(...)`` free of cancellation.
+_HOLD_CLIP = 10.0
+
+
+def _ratio(force, capacity):
+    """``force / capacity`` where ``capacity > 1e-12 |force|``, else ``+-1e12``
+    (no contact force at first contact and separation, or ``mu = 0``: the
+    law is then saturated and multiplied by ``capacity = 0``); double-``where``
+    so the gradient stays finite."""
+    ok = capacity > 1e-12 * jnp.abs(force)
+    return jnp.where(ok, force / jnp.where(ok, capacity, 1.0), 1e12 * jnp.sign(force))
+
+
+def _dead_zone(x, x0=_HOLD_DEAD_ZONE):
+    """``x^3 / (x^2 + x0^2)``: ``x`` beyond ``x0``, flat (cubic) at rest."""
+    return x - x * (x0 * x0 / (x * x + x0 * x0))
+
+
+def _saturate(z, delta=_HOLD_CORNER):
+    """Smooth ``clip(z, -1, 1)``: odd, ``z`` inside to ``delta exp(-(1 -
+    |z|)/delta)``, ``+-1`` outside to ``delta exp(-(|z| - 1)/delta)``; C-infinity."""
+    z = jnp.clip(z, -_HOLD_CLIP, _HOLD_CLIP)
+    return z - delta * (
+        jax.nn.softplus((z - 1.0) / delta) - jax.nn.softplus((-z - 1.0) / delta)
+    )
+
 
 class Friction(eqx.Module):
     """Coulomb plus viscous friction (F-1), optionally with a static coefficient
     above the kinetic one (F-2).
 
-    **F-1** (``mu_s`` not given): ``F_t = -(mu F_n + mu_v |v_t|) sgn(v_t)``.  In
-    the smooth-switched vector field ``sgn`` becomes ``tanh(v_t / eps)`` with
-    ``eps = SolverSettings.slip_width * v_ref`` (``v_ref`` the normal approach
-    speed; physics.md section 3): stick is approximated by the steep slope near
-    ``v_t = 0``.
-
+    **F-1** (``mu_s`` not given): ``F_t = -(mu F_n + mu_v |v_t|) sgn(v_t)``.
     **F-2** (``mu_s`` given, ``mu_s >= mu_k``): stick while the tangential force
     needed to keep ``v_t = 0`` stays within ``mu_s F_n``, slide with ``mu_k``
-    otherwise.  Smooth form, with ``x = v_t / eps`` and ``x_s`` =
-    ``breakaway_slip`` (default 4):
+    otherwise (physics.md section 3).  In the smooth-switched vector field the
+    switch at ``v_t = 0`` is spread over the slip width ``eps =
+    SolverSettings.slip_width * v_ref`` (``v_ref`` the normal approach speed),
+    with ``x = v_t / eps``, in one of two forms.
+
+    **Exact hold** (planar scenes: :meth:`force` with ``holding_force``).  The
+    scene supplies the *holding force* ``F_h``, the tangential force that
+    keeps the slip velocity constant (from its rigid-body dynamics, without
+    friction), and the friction force is
+
+        ``F_t = c S(F_h / c - beta g(x)) - mu_v |v_t| tanh(x)``,  ``c = mu F_n``,
+
+    ``S`` a smooth ``clip(., -1, 1)`` (corners rounded over 0.01), ``beta = 1 +
+    10 softplus(|F_h| / c - 1)`` and ``g(x) = x^3 / (x^2 + 0.01^2)``.  While
+    ``|F_h| < c`` a contact at rest gets exactly ``F_h``: it is held without
+    creep.  Slip left over when a sliding contact comes to rest decays like
+    ``exp(-c beta t / (m_t eps))`` down to 0.01 widths, then like ``1 /
+    sqrt(t)`` (the dead zone ``g``: a linear restoring force would make the held
+    contact a stiff mode that an explicit solver runs at its stability limit,
+    ~5,000 steps for a held bar, with sensitivities growing without bound).
+    A contact sliding faster than ``(1 + |F_h| / c) eps`` feels the full
+    ``c``, and one that cannot be held slides with the full force at once (one
+    reversing through ``v_t = 0`` switches within ~``|F_h| / (beta c)``
+    widths of it).  Against the sharp event-based stick/slip solve the
+    rebound agrees to 1e-12 .. 1.4e-8, and to 4.3e-5 in the worst case, a
+    contact that reaches rest just as it separates (benchmarks/RESULTS.md).
+    With ``mu_s`` the capacity is ``c = F_n [mu_k + (mu_s - mu_k) exp(-(x /
+    x_s)^2 / 2) H]``, ``H`` a smooth step (width 0.01) of ``1 - |F_h| / (mu_s
+    F_n)``: ``mu_s F_n`` at rest while it can hold, ``mu_k F_n`` once sliding
+    or as soon as the demand exceeds ``mu_s F_n`` (``x_s = breakaway_slip``,
+    default 1 in this form).
+
+    **Slope only** (:meth:`force` without ``holding_force``; used by
+    :func:`diffimpact.simulate_span`, whose mechanisms are not one free rigid
+    body): ``sgn`` becomes ``tanh(x)``, and stick is approximated by the steep
+    slope near ``v_t = 0``: a held contact creeps at ``eps atanh(F_h / c)``, an
+    error of order ``eps`` (1.1e-4 .. 1.7e-4 of a held bar's rebound at the
+    default width).  F-2 here has ``x_s = breakaway_slip`` (default 4):
 
         ``F_t = -F_n [mu_k tanh(x) + (mu_s - mu_k) phi(x / x_s)] - mu_v |v_t| tanh(x)``,
         ``phi(u) = u exp((1 - u^2) / 2)``
@@ -39,28 +115,23 @@ class Friction(eqx.Module):
     to within ``(1 - tanh(4)) mu_k = 6.7e-4 mu_k`` (measured: ``0.99946 mu_s``
     at ``mu_k = 0.95 mu_s``, ``mu_s`` exactly at ``mu_k = 0``).  Beyond the peak
     it falls to ``mu_k``: the excess is ``8e-4 (mu_s - mu_k)`` at ``|v_t| = 17
-    eps``, ``3e-5`` at ``20 eps``, ``3e-8`` at ``25 eps``.  A contact that slides
-    well outside the band therefore feels exactly F-1 with ``mu = mu_k``; one
-    that must be held feels a static capacity ``mu_s``.  (A Gaussian blend of the
-    coefficient, ``mu_k + (mu_s - mu_k) exp(-(x/c)^2)``, multiplied by
-    ``tanh(x)`` reaches only ``0.7 mu_s`` at ``c = 3`` and ``0.93 mu_s`` at ``c =
-    10`` when ``mu_k = 0``: its peak is not ``mu_s``, so it is not used.)
+    eps``, ``3e-5`` at ``20 eps``, ``3e-8`` at ``25 eps``.
 
     **Arguments:** `mu`: the Coulomb (kinetic) coefficient ``mu_k`` (>= 0;
     ``mu_k=`` is accepted as a keyword alias); `mu_v`: viscous coefficient [N
     s/m] (>= 0, default 0); `mu_s`: static coefficient (>= ``mu``; default
     None = plain F-1, bit-identical to ``Friction(mu, mu_v)``);
-    `breakaway_slip`: ``x_s``, the slip at the static peak in slip widths
-    (static, default 4).  ``mu``, ``mu_v`` and ``mu_s`` are differentiable
-    fields.
+    `breakaway_slip`: ``x_s`` in slip widths (static; default None: 1 for the
+    exact hold, 4 for the slope-only law).  ``mu``, ``mu_v`` and ``mu_s`` are
+    differentiable fields.
     """
 
     mu: Array
     mu_v: Array
     mu_s: Array | None
-    breakaway_slip: float = eqx.field(static=True)
+    breakaway_slip: float | None = eqx.field(static=True)
 
-    def __init__(self, mu=None, mu_v=0.0, mu_s=None, *, mu_k=None, breakaway_slip=4.0):
+    def __init__(self, mu=None, mu_v=0.0, mu_s=None, *, mu_k=None, breakaway_slip=None):
         if (mu is None) == (mu_k is None):
             raise TypeError(
                 "Friction takes the kinetic coefficient once: `mu` or `mu_k` "
@@ -69,7 +140,7 @@ class Friction(eqx.Module):
         self.mu = as_float(mu if mu is not None else mu_k)
         self.mu_v = as_float(mu_v)
         self.mu_s = None if mu_s is None else as_float(mu_s)
-        self.breakaway_slip = float(breakaway_slip)
+        self.breakaway_slip = None if breakaway_slip is None else float(breakaway_slip)
 
     def __check_init__(self):
         require_nonnegative(self.mu, "Friction.mu (kinetic coefficient mu_k)")
@@ -81,7 +152,8 @@ class Friction(eqx.Module):
                 "`Friction.mu_s` (static coefficient) must be finite and >= "
                 "`Friction.mu_k` (kinetic, the `mu` field) >= 0",
             )
-        if not (math.isfinite(self.breakaway_slip) and self.breakaway_slip > 0):
+        x_s = self.breakaway_slip
+        if x_s is not None and not (math.isfinite(x_s) and x_s > 0):
             raise ValueError(
                 "`Friction.breakaway_slip` must be a finite number > 0 (slip widths)"
             )
@@ -91,25 +163,58 @@ class Friction(eqx.Module):
         """The kinetic coefficient (the ``mu`` field)."""
         return self.mu
 
+    def breakaway(self, hold: bool) -> float:
+        """``breakaway_slip``, or its default for the law in use: 1 slip width
+        with the exact hold, 4 for the slope-only law."""
+        if self.breakaway_slip is not None:
+            return self.breakaway_slip
+        return 1.0 if hold else 4.0
+
     @property
     def stick_band(self) -> float:
         """Half-width of the stick band, in slip widths: a contact point moving
         slower than this may be held by friction, a faster one slides with the
         full kinetic force.  5 for F-1 (``tanh(5) = 0.99991``); for F-2 it also
-        covers the static peak, ``max(5, breakaway_slip + 1)``."""
+        covers the static peak, ``max(5, breakaway_slip + 1)`` (the default
+        breakaway of the exact-hold law, which the planar scenes use)."""
         if self.mu_s is None:
             return _COULOMB_BAND
-        return max(_COULOMB_BAND, self.breakaway_slip + 1.0)
+        return max(_COULOMB_BAND, self.breakaway(hold=True) + 1.0)
 
-    def force(self, normal_force, slip_velocity, width):
+    def force(self, normal_force, slip_velocity, width, holding_force=None):
         """Tangential force [N] opposing ``slip_velocity`` [m/s] (F-1, F-2);
-        ``width`` [m/s] is the slip width ``eps``."""
+        ``width`` [m/s] is the slip width ``eps``.  With ``holding_force`` [N]
+        (the force that keeps the slip velocity constant) the exact-hold law,
+        else the slope-only law (class docstring)."""
         x = slip_velocity / width
         sign = jnp.tanh(x)
+        viscous = self.mu_v * jnp.abs(slip_velocity) * sign
+        if holding_force is not None:
+            return self._hold_force(normal_force, x, holding_force) - viscous
         if self.mu_s is None:
             magnitude = self.mu * normal_force + self.mu_v * jnp.abs(slip_velocity)
             return -magnitude * sign
-        u = x / self.breakaway_slip
+        u = x / self.breakaway(hold=False)
         peak = u * jnp.exp(0.5 * (1.0 - u * u))
         coulomb = self.mu * sign + (self.mu_s - self.mu) * peak
-        return -normal_force * coulomb - self.mu_v * jnp.abs(slip_velocity) * sign
+        return -normal_force * coulomb - viscous
+
+    def _hold_force(self, normal_force, x, holding_force):
+        """Coulomb part of the exact-hold law: ``c S(F_h / c - beta x)``."""
+        kinetic = self.mu * normal_force
+        if self.mu_s is None:
+            capacity = kinetic
+        else:
+            # Static capacity only near rest *and* while it can hold: a demand
+            # above mu_s F_n makes the contact slide at once with mu_k, as in
+            # the sharp law, instead of first slipping x_s widths against
+            # mu_s (measured: 1.5e-4 of v_t on a bar that slides off).
+            static = self.mu_s * normal_force
+            demand = _ratio(holding_force, static)
+            can_hold = jax.nn.sigmoid((1.0 - jnp.abs(demand)) / _HOLD_CORNER)
+            near_rest = jnp.exp(-0.5 * (x / self.breakaway(hold=True)) ** 2)
+            capacity = kinetic + (static - kinetic) * near_rest * can_hold
+        u = _ratio(holding_force, capacity)
+        excess = _HOLD_CORNER * jax.nn.softplus((jnp.abs(u) - 1.0) / _HOLD_CORNER)
+        beta = 1.0 + _HOLD_EXCESS_GAIN * excess
+        return capacity * _saturate(u - beta * _dead_zone(x))
