@@ -14,7 +14,8 @@ with a known restitution):
   critical angle ``tan(phi_c) = 3.5 mu (1 + e)``: sliding throughout
   (45 deg, mu 0.05), ending rolling (26 deg, mu 0.3), and either side of the
   critical angle (mu 0.1: phi_c = 30.75 deg; 31.0 deg slides, 30.5 deg
-  rolls);
+  rolls) and at it (30.75 deg: the sharp contact reaches rest as it
+  separates, the worst case of the exact-hold law);
 - the xi = 1/8 bar of data.md B (0.3 m drop), which has no tangential approach
   and sticks iff ``mu`` exceeds the force ratio it needs: stuck (60 deg,
   mu 0.4), sliding (45 deg, mu 0.3), and with static friction (F-2,
@@ -59,6 +60,7 @@ CASES = [
     ("ball rolls 26/0.3", "ball", 26.0, 0.3, None),
     ("ball slides 31/0.1", "ball", 31.0, 0.1, None),
     ("ball rolls 30.5/0.1", "ball", 30.5, 0.1, None),
+    ("ball at critical 30.75/0.1", "ball", 30.75, 0.1, None),
     ("bar stuck 60/0.4", "bar", 60.0, 0.4, None),
     ("bar slides 45/0.3", "bar", 45.0, 0.3, None),
     ("bar F-2 stuck 60/0.3/0.4", "bar", 60.0, 0.3, 0.4),

@@ -36,6 +36,11 @@ def register(sub) -> None:
     )
     p.add_argument("--law", choices=sorted(_LAWS), default="jackson-green")
     p.add_argument(
+        "--compliant",
+        action="store_true",
+        help="Mindlin tangential compliance at the contact (Friction(compliant=True))",
+    )
+    p.add_argument(
         "--set",
         action="append",
         default=[],
@@ -82,6 +87,8 @@ def _number(text, what):
 
 
 def run(args) -> int:
+    import equinox as eqx
+
     import diffimpact as di
     from diffimpact._observables import set_parameters
 
@@ -104,6 +111,15 @@ def run(args) -> int:
             experiment.friction,
             experiment.method,
             experiment.settings,
+        )
+    if args.compliant:
+        friction = experiment.friction
+        if friction is None:
+            raise ValueError(f"--compliant: the {scene} scene has no friction")
+        experiment = eqx.tree_at(
+            lambda e: e.friction,
+            experiment,
+            di.Friction(friction.mu, friction.mu_v, compliant=True),
         )
     fixed = {k: _number(v, "set") for k, v in _pairs(args.set, "set").items()}
     experiment = set_parameters(experiment, fixed)

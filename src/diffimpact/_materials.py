@@ -51,12 +51,18 @@ class ContactProperties(eqx.Module):
     - `effective_radius`: ``R`` [m] (G-2).
     - `yield_strength`: ``S_y`` of the weaker material [Pa] (G-3).
     - `poisson_ratio`: ``nu`` of that same weaker material (used in JG-1).
+    - `shear_modulus`: ``G* = 1 / ((2 - nu1)/G1 + (2 - nu2)/G2)`` [Pa], ``G_k =
+      E_k / (2 (1 + nu_k))``, the effective shear modulus of Mindlin's
+      tangential stiffness ``k_t = 8 G* a`` (Mindlin 1949; Johnson, *Contact
+      Mechanics*, 1985, section 7.2; physics.md is silent on it).  None where
+      the pair is not built from materials.
     """
 
     effective_modulus: Array
     effective_radius: Array
     yield_strength: Array
     poisson_ratio: Array
+    shear_modulus: Array | None = None
 
     @property
     def hertz_stiffness(self):
@@ -69,6 +75,17 @@ def effective_modulus(body: Material, other: Material):
     c1 = (1.0 - body.poisson_ratio**2) / body.youngs_modulus
     c2 = (1.0 - other.poisson_ratio**2) / other.youngs_modulus
     return 1.0 / (c1 + c2)
+
+
+def effective_shear_modulus(body: Material, other: Material):
+    """``G* = 1 / ((2 - nu1)/G1 + (2 - nu2)/G2)``, ``G = E / (2 (1 + nu))``
+    (Mindlin's tangential compliance; Johnson 1985, eq. 7.42)."""
+
+    def compliance(m):
+        shear = m.youngs_modulus / (2.0 * (1.0 + m.poisson_ratio))
+        return (2.0 - m.poisson_ratio) / shear
+
+    return 1.0 / (compliance(body) + compliance(other))
 
 
 def effective_radius(radius1, radius2=jnp.inf):
@@ -96,4 +113,5 @@ def contact_properties(
         poisson_ratio=jnp.where(
             weaker_is_body, body.poisson_ratio, other.poisson_ratio
         ),
+        shear_modulus=effective_shear_modulus(body, other),
     )

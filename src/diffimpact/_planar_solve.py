@@ -29,6 +29,7 @@ import equinox as eqx
 import jax
 import jax.numpy as jnp
 
+from ._laws._friction import _HOLD_CORNER, _SPRING_CORNER, _ratio, _saturate
 from ._result import ImpactResult
 from ._simulate import (
     _bind,
@@ -39,7 +40,7 @@ from ._simulate import (
     _solve,
     result_fields,
 )
-from ._smooth import step
+from ._smooth import safe_sqrt, step
 from .scenes._base import NormalProblem
 
 # Width of the "slip ratio is at its running minimum" indicator, in slip-ratio
@@ -50,6 +51,11 @@ _SLIP_MIN_WIDTH = 1e-9
 # Weight of the running peak force in the step-size error estimate (see
 # `solve_planar`).
 _PEAK_ERROR_WEIGHT = 1e-6
+
+# Compliant friction: rate (per ``d_ref / v0``, the impact's time unit; a
+# Hertz impact lasts 2.94) at which the Mindlin spring's stretch beyond the
+# Coulomb cap relaxes back to it when the cap falls.
+_SPRING_RELAX = 20.0
 
 
 class _Planar(eqx.Module):
@@ -70,7 +76,11 @@ class _Planar(eqx.Module):
     work_unit: jax.Array
     slip_sign: jax.Array
     v_t0: jax.Array
+    # Compliant friction: 8 G* sqrt(R), with k_t = 8 G* sqrt(R d); the index of
+    # the spring's stretch in the state (-1: no spring).
+    shear_stiffness: jax.Array | None
     settings: object = eqx.field(static=True)
+    i_spring: int = eqx.field(static=True, default=-1)
 
     @property
     def n(self):
@@ -84,13 +94,38 @@ class _Planar(eqx.Module):
         v_n, v_t = j_n @ q_dot, j_t @ q_dot
         d_m = y[2 * n] * sc.length
         f_n = _smooth_force(self.bound, d, v_n, d_m, self.settings, self.v0)
+        width = self.settings.slip_width * self.v0
         if self.friction is None:
             f_t = jnp.zeros_like(f_n)
+        elif self.friction.compliant:
+            spring = -self.spring_stiffness(d) * y[self.i_spring] * sc.length
+            f_t = self.friction.spring_force(f_n, spring, v_t, width)
         else:
-            width = self.settings.slip_width * self.v0
             hold = self.holding_force(q, q_dot, j_n, j_t, f_n)
             f_t = self.friction.force(f_n, v_t, width, holding_force=hold)
         return q, q_dot, d, j_n, j_t, v_n, v_t, f_n, f_t
+
+    def spring_stiffness(self, d):
+        """Mindlin's no-slip tangential stiffness ``k_t = 8 G* sqrt(R d)`` [N/m]."""
+        return self.shear_stiffness * safe_sqrt(d)
+
+    def spring_rate(self, y, d, f_n, v_t):
+        """``d delta / dt`` of the compliant contact's spring (scaled): the
+        contact point's slip velocity while the spring force is below the cap
+        ``mu F_n`` or unloading; 0 at the cap when loading further (gross
+        slip); a stretch beyond the cap (the cap fell) relaxes back to it."""
+        delta = y[self.i_spring] * self.sc.length
+        u = _ratio(-self.spring_stiffness(d) * delta, self.friction.mu * f_n)
+        at_cap = jax.nn.sigmoid((jnp.abs(u) - 1.0) / _HOLD_CORNER)
+        width = self.settings.slip_width * self.v0
+        outward = jax.nn.sigmoid(-jnp.tanh(u / _HOLD_CORNER) * v_t / width)
+        big = jnp.abs(u) > 0.5
+        kept = jnp.where(
+            big, _saturate(u, _SPRING_CORNER) / jnp.where(big, u, 1.0), 1.0
+        )
+        relax = _SPRING_RELAX / self.sc.time * delta * (1.0 - kept)
+        rate = v_t * (1.0 - at_cap * outward) - relax
+        return rate * self.sc.time / self.sc.length
 
     def holding_force(self, q, q_dot, j_n, j_t, f_n):
         """The tangential force that keeps the slip velocity constant:
@@ -132,6 +167,8 @@ def _planar_field(t, y, p: _Planar):
         s_min = y[2 * n + 2 + (1 if bound.rate_dependent else 0)]
         at_min = step(s_min - s_now, _SLIP_MIN_WIDTH)
         parts.append((jnp.minimum(s_dot, 0.0) * at_min)[None])
+        if p.friction.compliant:
+            parts.append(p.spring_rate(y, d, f_n, v_t)[None])
     rate = sc.time / p.impulse_unit
     parts.append(
         jnp.stack(
@@ -175,9 +212,10 @@ def planar_setup(scene, law, friction, settings):
         v_t0 != 0, jnp.sign(v_t0), jnp.where(push != 0, jnp.sign(push), 1.0)
     )
     normal_mass = 1.0 / jnp.sum(j_n0**2 * inv_mass)
+    contact = scene.contact()
     problem = NormalProblem(
         mass=normal_mass,
-        contact=scene.contact(),
+        contact=contact,
         velocity=v0,
         gravity=jnp.zeros_like(v0),
     )
@@ -188,6 +226,19 @@ def planar_setup(scene, law, friction, settings):
     impulse_unit = normal_mass * v0
     work_unit = normal_mass * v0**2
     hist = 2 * n  # index of x_m
+    has_friction = friction is not None
+    compliant = has_friction and friction.compliant
+    i_spring, shear_stiffness = -1, None
+    if compliant:
+        if contact.shear_modulus is None:
+            raise ValueError(
+                "`Friction(compliant=True)` needs the contact's shear modulus: "
+                "the scene's contact() must come from materials"
+            )
+        i_spring = hist + 3 + (1 if bound.rate_dependent else 0)
+        shear_stiffness = (
+            8.0 * contact.shear_modulus * jnp.sqrt(contact.effective_radius)
+        )
     p = _Planar(
         scene=scene,
         bound=bound,
@@ -202,11 +253,13 @@ def planar_setup(scene, law, friction, settings):
         work_unit=work_unit,
         slip_sign=slip_sign,
         v_t0=v_t0,
+        shear_stiffness=shear_stiffness,
         settings=settings,
+        i_spring=i_spring,
     )
-    has_friction = friction is not None
     i_slip = hist + 2 + (1 if bound.rate_dependent else 0)  # s_min, if any
     n_extra = 2 + (1 if bound.rate_dependent else 0) + (1 if has_friction else 0) + 6
+    n_extra += 1 if compliant else 0
     y0 = jnp.concatenate(
         [
             jnp.zeros(n, v0.dtype),

@@ -32,6 +32,10 @@ _HOLD_EXCESS_GAIN = 10.0
 #   mode, never excited in the solution itself, grew to 1e143); residual slip
 #   then decays like ``x0 / sqrt(t)`` from ``x0``;
 _HOLD_DEAD_ZONE = 0.01
+# Compliant contact (``compliant=True``): corner of the Mindlin spring's cap
+# (fraction of mu F_n), sharper than the hold's: the cap is where a sliding
+# contact sits, and a rounded corner leaves the force short of mu F_n there.
+_SPRING_CORNER = 1e-3
 # - saturation input clipped to +-10: ``S`` is flat to 1e-300 well before that,
 #   and the clip keeps ``z - delta softplus(...)`` free of cancellation.
 _HOLD_CLIP = 10.0
@@ -54,7 +58,7 @@ def _dead_zone(x, x0=_HOLD_DEAD_ZONE):
 def _saturate(z, delta=_HOLD_CORNER):
     """Smooth ``clip(z, -1, 1)``: odd, ``z`` inside to ``delta exp(-(1 -
     |z|)/delta)``, ``+-1`` outside to ``delta exp(-(|z| - 1)/delta)``; C-infinity."""
-    z = jnp.clip(z, -_HOLD_CLIP, _HOLD_CLIP)
+    z = jnp.clip(z, -_HOLD_CLIP, _HOLD_CLIP)  # (flat beyond for delta <= 0.1)
     return z - delta * (
         jax.nn.softplus((z - 1.0) / delta) - jax.nn.softplus((-z - 1.0) / delta)
     )
@@ -117,21 +121,49 @@ class Friction(eqx.Module):
     it falls to ``mu_k``: the excess is ``8e-4 (mu_s - mu_k)`` at ``|v_t| = 17
     eps``, ``3e-5`` at ``20 eps``, ``3e-8`` at ``25 eps``.
 
+    **Tangential compliance** (``compliant=True``, planar scenes).  The
+    contact is a Mindlin spring in series with Coulomb slip (Mindlin 1949;
+    Maw, Barber & Fawcett, *Wear* 38, 1976; physics.md is silent on it): the
+    elastic tangential displacement ``delta`` is a state, the spring force is
+    ``-k_t delta`` with the no-slip stiffness ``k_t = 8 G* a``, ``a = sqrt(R
+    d)`` the Hertz contact radius and ``G*`` the effective shear modulus
+    (:class:`ContactProperties`), and the force on the body is that capped
+    smoothly at ``mu F_n``.  ``delta`` follows the contact point's slip
+    velocity while the spring is below the cap, stops growing at the cap (gross
+    slip) and is relaxed back to it when the cap falls.  A stuck contact
+    stores tangential energy in compression and returns it in restitution,
+    so the contact point can reverse: a ball arriving without spin can leave
+    slower than rolling (``e_t < 5/7``), which rigid-body theory excludes.
+    The contact radius is Hertz's even where the normal law is plastic (a
+    plastic contact is wider, and stiffer in shear), and the partial-slip
+    softening of Mindlin-Deresiewicz below the cap is not modelled.
+
     **Arguments:** `mu`: the Coulomb (kinetic) coefficient ``mu_k`` (>= 0;
     ``mu_k=`` is accepted as a keyword alias); `mu_v`: viscous coefficient [N
     s/m] (>= 0, default 0); `mu_s`: static coefficient (>= ``mu``; default
     None = plain F-1, bit-identical to ``Friction(mu, mu_v)``);
     `breakaway_slip`: ``x_s`` in slip widths (static; default None: 1 for the
-    exact hold, 4 for the slope-only law).  ``mu``, ``mu_v`` and ``mu_s`` are
-    differentiable fields.
+    exact hold, 4 for the slope-only law); `compliant`: Mindlin tangential
+    compliance (static, default False: a tangentially rigid contact).
+    ``mu``, ``mu_v`` and ``mu_s`` are differentiable fields.
     """
 
     mu: Array
     mu_v: Array
     mu_s: Array | None
     breakaway_slip: float | None = eqx.field(static=True)
+    compliant: bool = eqx.field(static=True)
 
-    def __init__(self, mu=None, mu_v=0.0, mu_s=None, *, mu_k=None, breakaway_slip=None):
+    def __init__(
+        self,
+        mu=None,
+        mu_v=0.0,
+        mu_s=None,
+        *,
+        mu_k=None,
+        breakaway_slip=None,
+        compliant=False,
+    ):
         if (mu is None) == (mu_k is None):
             raise TypeError(
                 "Friction takes the kinetic coefficient once: `mu` or `mu_k` "
@@ -141,6 +173,7 @@ class Friction(eqx.Module):
         self.mu_v = as_float(mu_v)
         self.mu_s = None if mu_s is None else as_float(mu_s)
         self.breakaway_slip = None if breakaway_slip is None else float(breakaway_slip)
+        self.compliant = bool(compliant)
 
     def __check_init__(self):
         require_nonnegative(self.mu, "Friction.mu (kinetic coefficient mu_k)")
@@ -151,6 +184,11 @@ class Friction(eqx.Module):
                 jnp.isfinite(self.mu_s) & (self.mu_s >= self.mu),
                 "`Friction.mu_s` (static coefficient) must be finite and >= "
                 "`Friction.mu_k` (kinetic, the `mu` field) >= 0",
+            )
+        if self.compliant and self.mu_s is not None:
+            raise ValueError(
+                "`Friction(compliant=True)` takes one coefficient `mu` (the "
+                "Mindlin spring is capped at mu F_n); `mu_s` is not supported with it"
             )
         x_s = self.breakaway_slip
         if x_s is not None and not (math.isfinite(x_s) and x_s > 0):
@@ -198,6 +236,16 @@ class Friction(eqx.Module):
         peak = u * jnp.exp(0.5 * (1.0 - u * u))
         coulomb = self.mu * sign + (self.mu_s - self.mu) * peak
         return -normal_force * coulomb - viscous
+
+    def spring_force(self, normal_force, elastic_force, slip_velocity, width):
+        """Tangential force [N] of a compliant contact: the Mindlin spring's
+        force ``elastic_force`` [N] (on the body), capped smoothly at ``mu F_n``,
+        plus the viscous term (``compliant=True``, class docstring)."""
+        capacity = self.mu * normal_force
+        u = _ratio(elastic_force, capacity)
+        coulomb = capacity * _saturate(u, _SPRING_CORNER)
+        x = slip_velocity / width
+        return coulomb - self.mu_v * jnp.abs(slip_velocity) * jnp.tanh(x)
 
     def _hold_force(self, normal_force, x, holding_force):
         """Coulomb part of the exact-hold law: ``c S(F_h / c - beta x)``."""
