@@ -45,6 +45,11 @@ def test_fit_bad_arguments(tmp_path, capsys):
     bad = ["fit", str(data), "--free", "yield_strength", "--set", "radius"]
     assert main(bad) == 2
     assert "NAME=VALUE" in capsys.readouterr().err
+    compliant = ["fit", str(data), "--free", "yield_strength", "--compliant"]
+    assert main(compliant + ["--out", str(tmp_path / "c")]) == 2
+    assert "--compliant: the normal_impact scene has no friction" in (
+        capsys.readouterr().err
+    )
 
 
 def test_simulate_a_scene_with_inputs_and_parameters(capsys):

@@ -238,12 +238,12 @@ def _sharp_critical(mu):
 def test_critical_angle_ball():
     """Where sliding throughout ends, against (1) the sharp model's critical
     angle (same compliant contact, gravity included): measured 2.6e-6 rad
-    apart, 0.02 slip widths of the indicator, the bias gravity leaves in the
-    asinh(1/2) level; (2) Routh's rigid closed form tan(phi_c) = 3.5 mu (1 + e),
-    which neglects gravity during the contact (g t_c / v' = 2.5e-4): measured
-    6.1e-5 rad.  The gradient d phi_c / d mu (4.393994) against the closed form
-    (measured 7.1e-5 off, gravity again) and central differences of the smooth
-    (5.6e-7) and of the sharp critical angle (1.1e-6)."""
+    apart, the bias gravity leaves in the exp(-1) level; (2) Routh's rigid
+    closed form tan(phi_c) = 3.5 mu (1 + e), which neglects gravity during the
+    contact (g t_c / v' = 2.5e-4): measured 5.6e-5 rad.  The gradient d phi_c /
+    d mu (4.394000) against the closed form (measured 7.0e-5 off, gravity
+    again) and central differences of the smooth (3.5e-7) and of the sharp
+    critical angle (3.7e-7)."""
     mu = 0.1
     phi_c = _ball_critical(mu)
     assert phi_c.shape == (1,)
@@ -307,7 +307,7 @@ def test_mu_gradient_across_the_sliding_sticking_switch():
     30.749 deg (critical mu = 0.1): the gradient falls from -3.49 to -8e-6
     within 2 % of mu, and matches central differences of the tight solve
     (h = 1e-7: at 1e-6 the FD truncation is 2.4e-4 where the slip passes
-    through the band) to 1e-5.  Measured worst 3.5e-6, none NaN."""
+    through the band) to 1e-5.  Measured worst 2.1e-6, none NaN."""
     phi = math.radians(30.749)
     tight = di.SolverSettings(max_steps=65536, rtol=1e-13, atol=1e-15)
 
@@ -330,10 +330,10 @@ def test_mu_gradient_across_the_sliding_sticking_switch():
 def test_f2_gradients(theta_deg, regime):
     """Gradients of the bar's rebound with respect to mu_k, mu_s and mu_v,
     sliding off (30 deg) and held by static friction (60 deg), against
-    central differences (h = 1e-5) of the tight solve.  Measured worst 3e-7
-    sliding; held, the sensitivities are 1e-3 of the sliding ones and the
-    worst error is 2e-5 of the gradient but 1e-8 of |output / parameter| (the
-    default solve's gradient agrees with the tight solve's to 6e-9 there)."""
+    central differences (h = 1e-5) of the tight solve.  Measured worst
+    1.2e-7 sliding; held, the contact is held exactly, so the sensitivities
+    are those of the residual slip, 1e-5 of the sliding ones (the sharp law's
+    are 0), and AD and FD agree to 2.3e-8 of |output / parameter|."""
     theta = math.radians(theta_deg)
     tight = di.SolverSettings(max_steps=65536, rtol=1e-13, atol=1e-15)
 
