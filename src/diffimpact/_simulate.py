@@ -229,8 +229,10 @@ def _check_event(sol, what: str, settings: SolverSettings):
         happened,
         f"diffimpact: {what} did not happen within `SolverSettings.max_time` = "
         f"{settings.max_time} impact time units (d_ref / v0); the bodies may "
-        "never separate (e.g. gravity holds them together). Raise `max_time` if "
-        "the impact is just slow.",
+        "never separate (e.g. gravity holds them together, or friction jams a "
+        "contact that cannot move without slipping: a RotatingLink whose tip "
+        "sticks with mu tan(angle) > 1 is wedged). Raise `max_time` if the "
+        "impact is just slow.",
     )
     return t
 

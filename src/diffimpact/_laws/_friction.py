@@ -15,11 +15,12 @@ from .._checks import as_float, require, require_nonnegative
 # tanh(v_t / eps) > 0.9999, the friction force is fully mobilised (sliding).
 _COULOMB_BAND = 5.0
 
-# Exact-hold friction (``Friction.force`` with a holding force; module
-# docstring of ``_planar_solve``):
+# Exact-hold friction (``Friction.force`` with a holding force; class
+# docstring):
 # - corner rounding of the smooth saturation ``S`` (fraction of the capacity):
 #   ``S(z) = z`` to ``delta exp(-(1 - |z|) / delta)`` inside, so a contact
-#   needing 0.95 of its capacity is held with an error of 2e-5 of it;
+#   needing 0.9 of its capacity gets it to 4.5e-7 of it at rest (the rest is
+#   made up by a slip of that order);
 _HOLD_CORNER = 0.01
 # - extra gain on the slip beyond the capacity, so that a contact that cannot be
 #   held (``|u| > 1``) reverses within ~``u / (1 + K (|u| - 1))`` slip widths
@@ -32,13 +33,13 @@ _HOLD_EXCESS_GAIN = 10.0
 #   mode, never excited in the solution itself, grew to 1e143); residual slip
 #   then decays like ``x0 / sqrt(t)`` from ``x0``;
 _HOLD_DEAD_ZONE = 0.01
+# - saturation input clipped to +-10: ``S`` is flat to 1e-300 well before that,
+#   and the clip keeps ``z - delta softplus(...)`` free of cancellation.
+_HOLD_CLIP = 10.0
 # Compliant contact (``compliant=True``): corner of the Mindlin spring's cap
 # (fraction of mu F_n), sharper than the hold's: the cap is where a sliding
 # contact sits, and a rounded corner leaves the force short of mu F_n there.
 _SPRING_CORNER = 1e-3
-# - saturation input clipped to +-10: ``S`` is flat to 1e-300 well before that,
-#   and the clip keeps ``z - delta softplus(...)`` free of cancellation.
-_HOLD_CLIP = 10.0
 
 
 def _ratio(force, capacity):
