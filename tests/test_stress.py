@@ -1,7 +1,7 @@
 """Numerical stress tests (issue 6): >= 2,000 random impacts across scenes.
 
 The normal-impact grids (2,000 combinations with float32) run by default; the
-friction-scene grids (220 more, dominated by the stiff stick phase) are marked
+friction-scene grids (220 more, about 30 s on 2 cores) are marked
 ``stress`` and run with ``pytest -m stress``.
 
 Every combination either returns finite outputs (and finite gradients) that
