@@ -206,7 +206,7 @@ def _solve(field, y0, args, settings, conds, directions, dense=False, weights=No
             f"diffimpact: the step budget SolverSettings.max_steps = "
             f"{settings.max_steps} ran out before the bodies separated; raise it, "
             f"e.g. SolverSettings(max_steps={4 * settings.max_steps}) (stiff cases: "
-            "a compliant contact at a large mu, very soft or very plastic contact)",
+            "very soft or very plastic contact, a tangentially compliant contact)",
         ),
         (
             (r == diffrax.RESULTS.successful) | (r == diffrax.RESULTS.event_occurred),
