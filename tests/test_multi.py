@@ -468,6 +468,12 @@ def test_rejects_approach_speed_laws_and_wrong_scenes():
             lambda: simulate_span(bar(), di.Hertz(), (float("nan"), 0.1)),
             r"t_span\[0\]",
         ),
+        (
+            lambda: simulate_span(
+                bar(), di.Hertz(), (0.0, 0.1), friction=di.Friction(0.1, compliant=True)
+            ),
+            "compliant",
+        ),
     ],
 )
 def test_bad_input_names_the_field(make, match):

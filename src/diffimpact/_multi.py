@@ -886,6 +886,12 @@ def simulate_span(
             f"`friction` must be None or a diffimpact.Friction, got "
             f"{type(friction).__name__}"
         )
+    if friction is not None and friction.compliant:
+        raise ValueError(
+            "`Friction(compliant=True)` (the Mindlin spring) is available in "
+            "diffimpact.simulate's planar scenes, not in simulate_span: use "
+            "Friction(mu, mu_v) here"
+        )
     if not isinstance(settings, SpanSettings):
         raise TypeError("`settings` must be a diffimpact.SpanSettings")
     if not isinstance(n_save, int) or n_save < 0:
