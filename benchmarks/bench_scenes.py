@@ -329,8 +329,9 @@ def bench_diffrax(
     return rows
 
 
-def measured_row(case, family, rtol, out, times, refs) -> Row:
-    """A successful solve's row: timings, error against the reference, steps."""
+def measured_row(case, family, rtol, out, times, refs, steps=None, **extra) -> Row:
+    """A successful solve's row: timings, error against the reference, steps
+    (``out["num_steps"]`` unless given), and ``extra`` fields of :class:`Row`."""
     error, worst = max_relative_error(out, refs[case.key])
     return Row(
         case.key,
@@ -339,8 +340,9 @@ def measured_row(case, family, rtol, out, times, refs) -> Row:
         statistics.median(times),
         error,
         worst,
-        steps=int(out["num_steps"]),
+        steps=int(out["num_steps"]) if steps is None else steps,
         fastest=min(times),
+        **extra,
     )
 
 
@@ -570,19 +572,17 @@ def bench_scipy(
                     ),
                     config,
                 )
-                error, worst = max_relative_error(out, refs[case.key])
                 rows.append(
-                    Row(
-                        case.key,
+                    measured_row(
+                        case,
                         family,
                         rtol,
-                        statistics.median(times),
-                        error,
-                        worst,
+                        out,
+                        times,
+                        refs,
                         steps=steps,
                         calls=calls,
                         dispatch=calls * identity,
-                        fastest=min(times),
                     )
                 )
                 progress(rows[-1])
