@@ -16,7 +16,7 @@ from jaxtyping import Array
 
 from .._checks import as_float, require, require_positive
 from .._materials import Material, contact_properties
-from ._base import NormalProblem
+from ._base import NormalProblem, rod_inertia
 from ._link import optional_float
 from ._planar import AbstractPlanarScene
 
@@ -70,10 +70,7 @@ class AbstractRod(eqx.Module):
     @property
     def inertia(self):
         """``m L^2 / 12`` about the centre of mass [kg m^2] (+ ``m D^2 / 16``)."""
-        i = self.mass * self.length**2 / 12.0
-        if self.cross_section_inertia:
-            i = i + self.mass * self.diameter**2 / 16.0
-        return i
+        return rod_inertia(self, 1.0 / 12.0)
 
 
 class FreeBar(AbstractRod, AbstractPlanarScene):

@@ -32,3 +32,12 @@ class AbstractScene(eqx.Module):
     def extras(self, rebound_velocity) -> dict:
         """Scene-specific outputs, given the normal separation speed."""
         return {}
+
+
+def rod_inertia(rod, factor):
+    """``factor m L^2`` (1/12 about the centre of mass, 1/3 about an end) of a
+    uniform rod, plus ``m D^2 / 16`` when ``rod.cross_section_inertia``."""
+    i = factor * rod.mass * rod.length**2
+    if rod.cross_section_inertia:
+        i = i + rod.mass * rod.diameter**2 / 16.0
+    return i

@@ -12,7 +12,7 @@ from jaxtyping import Array
 
 from .._checks import as_float, require, require_positive
 from .._materials import Material, contact_properties
-from ._base import NormalProblem
+from ._base import NormalProblem, rod_inertia
 from ._planar import AbstractPlanarScene
 
 
@@ -131,10 +131,7 @@ class RotatingLink(AbstractPlanarScene):
     @property
     def inertia(self):
         """``I = m L^2 / 3`` about the pivot [kg m^2] (+ ``m D^2 / 16`` if asked)."""
-        i = self.mass * self.length**2 / 3.0
-        if self.cross_section_inertia:
-            i = i + self.mass * self.diameter**2 / 16.0
-        return i
+        return rod_inertia(self, 1.0 / 3.0)
 
     @property
     def pivot_height(self):
