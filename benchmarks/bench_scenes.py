@@ -375,7 +375,7 @@ def planar_problem(scene, law, friction, settings: di.SolverSettings) -> PlanarP
 
 def final_outputs(args: _Planar, y, tau) -> dict:
     """The compared outputs from the state at separation (as ``solve_planar``)."""
-    q, q_dot, _, _, _, v_n, _, _, _ = args.forces(y)
+    q, q_dot, _, _, _, v_n, _, _, _, _ = args.forces(y)
     report = args.scene.report(q, q_dot)
     return {
         "rebound_velocity": -v_n,

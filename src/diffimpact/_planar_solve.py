@@ -96,14 +96,19 @@ class _Planar(eqx.Module):
         f_n = _smooth_force(self.bound, d, v_n, d_m, self.settings, self.v0)
         width = self.settings.slip_width * self.v0
         if self.friction is None:
-            f_t = jnp.zeros_like(f_n)
-        elif self.friction.compliant:
+            f_t = bias = jnp.zeros_like(f_n)
+            return q, q_dot, d, j_n, j_t, v_n, v_t, f_n, f_t, bias
+        # (dJ_t/dt) q_dot: the slip acceleration not due to forces (0 for a
+        # sphere on a plane, not for a link or a bar)
+        jvp = jax.jvp(lambda qq: self.scene.kinematics(qq)[2], (q,), (q_dot,))
+        bias = jvp[1] @ q_dot
+        if self.friction.compliant:
             spring = -self.spring_stiffness(d) * y[self.i_spring] * sc.length
             f_t = self.friction.spring_force(f_n, spring, v_t, width)
         else:
-            hold = self.holding_force(q, q_dot, j_n, j_t, f_n)
+            hold = self.holding_force(j_n, j_t, f_n, bias)
             f_t = self.friction.force(f_n, v_t, width, holding_force=hold)
-        return q, q_dot, d, j_n, j_t, v_n, v_t, f_n, f_t
+        return q, q_dot, d, j_n, j_t, v_n, v_t, f_n, f_t, bias
 
     def spring_stiffness(self, d):
         """Mindlin's no-slip tangential stiffness ``k_t = 8 G* sqrt(R d)`` [N/m]."""
@@ -127,19 +132,19 @@ class _Planar(eqx.Module):
         rate = v_t * (1.0 - at_cap * outward) - relax
         return rate * self.sc.time / self.sc.length
 
-    def holding_force(self, q, q_dot, j_n, j_t, f_n):
+    def holding_force(self, j_n, j_t, f_n, bias):
         """The tangential force that keeps the slip velocity constant:
         ``dv_t/dt = J_t M^-1 (-J_n^T F_n + J_t^T F_t + g) + (dJ_t/dt) q_dot = 0``
         solved for ``F_t`` (the mass matrix is diagonal and ``J_t M^-1 J_t^T >
-        0``), the input of the exact-hold friction law (:class:`Friction`)."""
-        j_t_dot = jax.jvp(lambda qq: self.scene.kinematics(qq)[2], (q,), (q_dot,))[1]
-        free = j_t @ ((self.gravity - j_n * f_n) * self.inv_mass) + j_t_dot @ q_dot
+        0``; ``bias = (dJ_t/dt) q_dot``), the input of the exact-hold friction
+        law (:class:`Friction`)."""
+        free = j_t @ ((self.gravity - j_n * f_n) * self.inv_mass) + bias
         return -free / (j_t @ (j_t * self.inv_mass))
 
 
 def _planar_field(t, y, p: _Planar):
     n, sc, bound, settings = p.n, p.sc, p.bound, p.settings
-    q, q_dot, d, j_n, j_t, v_n, v_t, f_n, f_t = p.forces(y)
+    q, q_dot, d, j_n, j_t, v_n, v_t, f_n, f_t, bias = p.forces(y)
     q_ddot = (-j_n * f_n + j_t * f_t + p.gravity) * p.inv_mass
     s = step(v_n / p.v0, settings.velocity_width)
     parts = [
@@ -159,10 +164,8 @@ def _planar_field(t, y, p: _Planar):
         parts.append(_peak_rate(force_fn, f_n, y[2 * n + 2], d, v_n, acc, sc)[None])
     if p.friction is not None:
         # Running minimum of s = sigma v_t / v_ref, with
-        # dv_t/dt = J_t q_ddot + (dJ_t/dt) q_dot (the second term vanishes for
-        # a sphere on a plane, not for a link or a bar).
-        j_t_dot = jax.jvp(lambda qq: p.scene.kinematics(qq)[2], (q,), (q_dot,))[1]
-        s_dot = p.slip_sign * (j_t @ q_ddot + j_t_dot @ q_dot) * sc.time / p.v0
+        # dv_t/dt = J_t q_ddot + (dJ_t/dt) q_dot.
+        s_dot = p.slip_sign * (j_t @ q_ddot + bias) * sc.time / p.v0
         s_now = p.slip_sign * v_t / p.v0
         s_min = y[2 * n + 2 + (1 if bound.rate_dependent else 0)]
         at_min = step(s_min - s_now, _SLIP_MIN_WIDTH)
@@ -294,7 +297,7 @@ def solve_planar(scene, law, friction, settings):
     sol = _solve(_planar_field, y0, p, settings, _separation, False, weights=weights)
     tau_end = _check_event(sol, "separation", settings)
     y = sol.ys[-1]
-    q, q_dot, _, j_n, j_t, v_n, v_t, _, _ = p.forces(y)
+    q, q_dot, _, j_n, j_t, v_n, v_t, _, _, _ = p.forces(y)
     acc = y[-6:]
     i_comp, i_rest = acc[0] * impulse_unit, acc[1] * impulse_unit
     w_comp, w_rest = acc[4] * work_unit, acc[5] * work_unit
