@@ -9,6 +9,7 @@ solve for the gradients.
 
 import math
 
+import diffrax
 import equinox as eqx
 import jax
 import jax.numpy as jnp
@@ -294,17 +295,115 @@ def test_material_pairs_over_a_span(rattling):
         assert float(r.energy_error / r.energy_scale) < 1e-6
 
 
+def rigid_mechanism(sc):
+    """The ideal slider-crank, written independently of the scene: one degree
+    of freedom ``phi``, ``M(phi) phi_ddot + M'(phi) phi_dot^2 / 2 = T_m`` with
+    ``M = J_O + m_2 |G'|^2 + J_2 beta'^2 + m_3 x_p'^2`` (Lagrange), and the
+    force of the rod on the piston pin from inverse dynamics (piston:
+    ``F_x = m_3 x_p_ddot``; rod, moments about the crank pin ``A``:
+    ``J_2 beta_ddot + m_2 (G - A) x G_ddot = (B - A) x (-F)``).
+    Returns ``(field, joint_force)`` for ``y = (phi, phi_dot)``."""
+    r, l = float(sc.crank_length), float(sc.rod_length)
+    a, m2, m3 = 0.5 * l, float(sc.rod_mass), float(sc.piston_mass)
+    j0, j2 = float(sc.crank_inertia), m2 * l**2 / 12.0
+    t0, w0 = float(sc.motor_torque), float(sc.motor_speed)
+
+    def geometry(phi):  # crank pin A, rod centre G, rod angle beta, piston x_p
+        beta = jnp.arcsin(-r * jnp.sin(phi) / l)
+        pin = r * jnp.stack([jnp.cos(phi), jnp.sin(phi)])
+        axis = jnp.stack([jnp.cos(beta), jnp.sin(beta)])
+        return pin, pin + a * axis, beta, pin[0] + l * axis[0]
+
+    def inertia(phi):
+        d = jax.jacfwd(geometry)(phi)
+        return j0 + m2 * jnp.sum(d[1] ** 2) + j2 * d[2] ** 2 + m3 * d[3] ** 2
+
+    def acceleration(phi, w):
+        torque = t0 * (1.0 - w / w0)
+        return (torque - 0.5 * jax.grad(inertia)(phi) * w**2) / inertia(phi)
+
+    def field(t, y, args):
+        return jnp.stack([y[1], acceleration(y[0], y[1])])
+
+    def joint_force(phi, w):
+        alpha = acceleration(phi, w)
+        d1, d2 = jax.jacfwd(geometry)(phi), jax.jacfwd(jax.jacfwd(geometry))(phi)
+        pin, centre, beta, _ = geometry(phi)
+        g_dd, b_dd, x_dd = (d2[k] * w**2 + d1[k] * alpha for k in (1, 2, 3))
+        fx = m3 * x_dd
+        arm = centre - pin
+        moment = j2 * b_dd + m2 * (arm[0] * g_dd[1] - arm[1] * g_dd[0])
+        fy = (-moment / l + jnp.sin(beta) * fx) / jnp.cos(beta)
+        return jnp.stack([fx, fy])
+
+    return field, joint_force
+
+
 @pytest.mark.slow
-def test_zero_clearance_kinematics_over_a_revolution():
-    """The rigid-mechanism check of the fast test from four starting crank
-    angles (each run turns about 1.5 rad in 1 s), covering the revolution.
-    The piston error is the pin's eccentricity, i.e. the Hertz compliance
-    ``|e| = (F / K)^(2/3)`` of the joint (geometry: ``|x_p - x_ideal| <=
-    (1 + tan(beta)) |e|``, 1.3 |e| here), and that stays below 3e-6 of the
-    stroke at the source's steel/aluminium K (measured 2.1e-6 where the joint
-    carries about 1 N while the motor accelerates the piston from rest; 7.7e-7
-    on the fast test's 0 .. 1.5 rad; the fast test also checks the
-    ``K^(-2/3)`` scaling, so 1e-6 needs a joint about 3x stiffer)."""
+def test_zero_clearance_follows_the_rigid_mechanism_over_a_revolution():
+    """A frictionless zero-clearance joint run from rest through a whole
+    revolution (3.7 s, crank angle 0 .. 6.93 rad) against the ideal mechanism
+    solved independently (``rigid_mechanism``):
+
+    - crank angle vs time to 1e-6 rad (measured 2.5e-7);
+    - the joint's impulse over the revolution equals the rigid mechanism's
+      (x: 1e-3, measured 3e-4): the joint transmits the same load;
+    - piston position vs the closed form at the same crank angle to 1e-6 of
+      the piston position (measured 5.3e-7; 1.02e-6 of the stroke).
+
+    The residual is physical: the pin's Hertz deflection ``(F / K)^(2/3)``
+    (F up to 0.22 N: 9e-8 m), plus the ringing of the undamped elastic joint
+    that the motor's torque step excites at start-up (the pin starts
+    centred); the ``K^(-2/3)`` scaling is checked in the fast test."""
+    sc = SliderCrank(clearance=0.0)
+    t1 = 3.7
+    r = simulate_span(
+        sc,
+        di.Hertz(stiffness=sc.hertz_stiffness),
+        (0.0, t1),
+        friction=di.Friction(0.0),
+        settings=SpanSettings(max_steps=65536, max_impacts=8),
+    )
+    assert int(r.impacts.count) == 1  # closed all along
+    t = valid(r.steps, r.steps.time)
+    q = valid(r.steps, r.steps.q)
+    out = r.steps.outputs
+    assert q[-1, 0] > 2.0 * math.pi
+
+    field, joint_force = rigid_mechanism(sc)
+    ideal = diffrax.diffeqsolve(
+        diffrax.ODETerm(field),
+        diffrax.Dopri8(),
+        0.0,
+        t1,
+        None,
+        jnp.zeros(2),
+        saveat=diffrax.SaveAt(ts=jnp.asarray(t)),
+        stepsize_controller=diffrax.PIDController(rtol=1e-13, atol=1e-15),
+        max_steps=65536,
+    ).ys
+    assert np.abs(q[:, 0] - np.asarray(ideal[:, 0])).max() < 1e-6
+
+    force = np.asarray(jax.vmap(joint_force)(ideal[:, 0], ideal[:, 1]))
+    impulse = np.trapezoid(force[:, 0], t)
+    ours = np.trapezoid(valid(r.steps, out["joint_force_x"]), t)
+    assert rel(ours, impulse) < 1e-3
+
+    x_ideal = valid(r.steps, out["ideal_piston_position"])
+    err = np.abs(valid(r.steps, out["piston_position"]) - x_ideal)
+    assert np.all(err / x_ideal < 1e-6)
+
+
+@pytest.mark.extended
+def test_zero_clearance_start_ups_over_a_revolution():
+    """Start-ups from rest at four crank angles (each run turns about 1.5 rad
+    in 1 s): a harsher load case than the running revolution above.  At rest
+    the motor gives its full torque; near a dead centre the joint carries up
+    to about 1 N, and the undamped joint rings after the torque step (up to
+    ``2.5^(2/3) = 1.84`` times the static deflection of a Hertz spring under a
+    suddenly applied load).  The piston error is the pin's eccentricity
+    (``|x_p - x_ideal| <= (1 + tan(beta)) |e|``, 1.3 |e| here); measured
+    2.1e-6 of the stroke and 1.06e-6 of the piston position."""
     covered = []
     for phi0 in [1.4, 2.8, 4.2, 5.6]:
         sc = SliderCrank(clearance=0.0, crank_angle=phi0)
