@@ -253,6 +253,26 @@ def test_clearance_rattles_with_impact_peaks(rigid, rattling):
     assert 1.5 < speed[-1] < float(sc.motor_speed)
 
 
+def test_impact_still_open_at_t1():
+    """A span that ends inside a contact (the 8th impact of the cast-iron
+    bearing starts 0.1 ms before t1 = 0.2 s): the impact is listed with
+    ``end = inf``, and its peak force and penetration are the largest so far,
+    those of the last step (regression: the peak was interpolated towards the
+    padding row after the last step, 6965 N for this 0.18 N contact)."""
+    _, r = crank_run(0.2, bearing=di.Material(110e9, 0.28))
+    im = r.impacts
+    n = int(im.count)
+    assert n >= 2 and np.isinf(float(im.end[n - 1]))
+    assert np.all(np.isfinite(np.asarray(im.end[: n - 1])))
+    f = valid(r.steps, r.steps.normal_force[:, 0])
+    d = valid(r.steps, r.steps.penetration[:, 0])
+    t = valid(r.steps, r.steps.time)
+    inside = t >= float(im.start[n - 1])
+    assert f[-1] == f[inside].max() > 0  # still rising at t1
+    assert rel(im.peak_force[n - 1], f[-1]) < 1e-9
+    assert rel(im.max_penetration[n - 1], d[-1]) < 1e-9
+
+
 def test_cast_iron_first_impact_is_harder():
     """The first impact (the bearing crossing the clearance at start-up) meets
     the pin at the same speed for both bearings, so the stiffer steel/cast

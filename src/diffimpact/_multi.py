@@ -183,7 +183,8 @@ class SpanImpacts(eqx.Module):
     - `count`: number of impacts detected (may exceed the capacity).
     - `contact`: index of the contact (``c`` of the scene's ``kinematics``).
     - `start`, `end` [s]: where ``d`` crosses 0 (``d_r``), refined inside the
-      step; `end` is ``inf`` for a contact still closed at ``t1``.
+      step; `end` is ``inf`` for a contact still closed at ``t1`` (its
+      peak, impulse and work are then those up to ``t1``).
     - `peak_force` [N], `impulse` [N s], `max_penetration` [m].
     - `dissipated_work` [J]: work done on the contact during the impact (the
       energy it took out of the mechanism; nothing is stored at its ends).
@@ -545,7 +546,9 @@ def _impacts_of_contact(k, ts, valid, active, d, f, imp, wn, qd, local, cap):
     kf = largest(f)
     kd = largest(d)
     lo = lambda i: jnp.maximum(i - 1, 0)  # noqa: E731
-    hi = lambda i: jnp.minimum(i + 1, big - 1)  # noqa: E731
+    # Not beyond the last accepted step: an impact still open at t1 may have
+    # its largest force there, and the padding rows after it are no state.
+    hi = lambda i: jnp.minimum(i + 1, last)  # noqa: E731
     rows = jnp.stack([sp, s, ep, e, lo(kf), kf, hi(kf), lo(kd), kd, hi(kd)], 1)
     g3, d3, f3, qdd = local(rows.reshape(-1))
     g3 = tuple(x.reshape(rows.shape) for x in g3)
