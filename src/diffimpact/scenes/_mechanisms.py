@@ -299,7 +299,11 @@ class SliderCrank(AbstractMechanism):
     the conformal value ``R_pin R_bearing / (R_bearing - R_pin)`` would be
     2000 times larger).  Note that the source's radii (20 and 20.02 mm) differ
     by 0.02 mm while its radial clearance is 0.03 mm; the radii enter only
-    ``K``, the clearance only ``d``.
+    ``K``, the clearance only ``d``.  With ``clearance = 0`` the joint is
+    closed from the start and carries its load at the elastic deflection
+    ``(F / K)^(2/3)``; the pin starts centred, so under an undamped law
+    (Hertz) it also rings about that deflection after the motor's torque
+    step (tests/test_multi.py, benchmarks/RESULTS.md).
 
     **Inertia.** Crank (with whatever turns with it) by its moment of inertia
     about the pivot ``J_O``; rod by mass ``m_2`` and moment of inertia ``J_2``
