@@ -69,6 +69,9 @@ from ._smooth import safe_pow, safe_sqrt, step
 from ._solver import stored_steps_adjoint
 from .scenes._mechanisms import AbstractMechanism
 
+# Bound on the scaled states the vector field reads (see `_Span.field`).
+_STATE_BOUND = 1e6
+
 
 class SpanSettings(eqx.Module):
     """Numerical settings of :func:`simulate_span`.
@@ -187,7 +190,9 @@ class SpanImpacts(eqx.Module):
       peak, impulse and work are then those up to ``t1``).
     - `peak_force` [N], `impulse` [N s], `max_penetration` [m].
     - `dissipated_work` [J]: work done on the contact during the impact (the
-      energy it took out of the mechanism; nothing is stored at its ends).
+      energy it took out of the mechanism; nothing is stored at its ends),
+      plus, for an impact already under way at ``t0``, the elastic energy
+      stored then.
     - `velocity_before`, `velocity_after`: ``q_dot`` at start and end,
       ``(max_impacts, n)`` (Hermite interpolation with ``q_ddot``).
     """
@@ -329,7 +334,16 @@ class _Span(eqx.Module):
     def field(self, tau, y):
         n = self.n
         t = tau * self.time
-        q, q_dot, d_m = self.unpack(y)
+        # A rejected trial stage of the adaptive solver can hold overflowed or
+        # NaN states (the Runge-Kutta stage arithmetic itself overflows on a
+        # wild trial step).  The step is discarded, but the backward pass still
+        # multiplies the field's derivative there by a zero cotangent, and
+        # 0 * NaN = NaN spreads into every gradient.  So the states the field
+        # reads non-linearly are made finite and bounded first: the identity
+        # on every real state (scaled states are O(1); 1e6 is never reached).
+        head = 2 * n + (self.nc if self.hysteretic else 0)
+        read = jnp.clip(jnp.nan_to_num(y[:head]), -_STATE_BOUND, _STATE_BOUND)
+        q, q_dot, d_m = self.unpack(read)
         d, j_n, j_t, v_n, v_t, f_n, f_t = self.contact_forces(q, q_dot, d_m)
         q_ddot, applied = self.accelerations(t, q, q_dot, j_n, j_t, f_n, f_t)
         tu = self.time
@@ -509,12 +523,13 @@ def _maximum(h, p0, p1, m0, m1, a0, a1):
     return jnp.maximum(_poly(c, u), jnp.maximum(p0, p1))
 
 
-def _impacts_of_contact(k, ts, valid, active, d, f, imp, wn, qd, local, cap):
+def _impacts_of_contact(k, ts, valid, active, d, f, imp, wn, v_c, qd, local, cap):
     """Impact list of contact ``k`` from per-step arrays (length N): times
     ``ts``, penetration ``d`` and normal force ``f``, accumulated impulse and
-    contact work, velocities ``qd``.  ``local(rows)`` returns, at the given step
-    indices only, the triples (value, d/dt, d^2/dt^2) of the penetration and
-    the force of this contact and ``q_ddot``."""
+    contact work, stored elastic energy ``v_c``, velocities ``qd``.
+    ``local(rows)`` returns, at the given step indices only, the triples
+    (value, d/dt, d^2/dt^2) of the penetration and the force of this contact
+    and ``q_ddot``."""
     big = ts.shape[0]
     prev = jnp.concatenate([jnp.zeros((1,), bool), active[:-1]])
     starts = active & ~prev
@@ -589,7 +604,8 @@ def _impacts_of_contact(k, ts, valid, active, d, f, imp, wn, qd, local, cap):
     f_peak = peak(f3, 4)
     d_peak = peak(d3, 7)
     impulse = imp[e] - imp[sp]
-    work = wn[e] - wn[sp]
+    # An impact already under way at t0 also gives back what was stored then.
+    work = wn[e] - wn[sp] + jnp.where(s_idx == 0, v_c[0], 0.0)
     zero = jnp.zeros_like(t_start)
     inf = jnp.full_like(t_start, jnp.inf)
     return dict(
@@ -642,6 +658,7 @@ def _history(p: _Span, taus, ys, valid, y0, e0):
             w_n=w_n,
             w_f=w_f,
             v_c=jnp.sum(p.elastic_energy(d)),
+            v_c_each=p.elastic_energy(d),
             impulse=impulse,
             outputs=out,
             threshold=p.threshold(d_m) if p.hysteretic else jnp.zeros_like(d),
@@ -780,7 +797,7 @@ def _simulate_span(scene, law, t_span, friction, settings, n_save):
     acc = ys[:, -(1 + 3 * nc) :]
     active = valid[:, None] & (h["d"] > h["threshold"])
 
-    def one_contact(k, active, d, f, imp, wn):
+    def one_contact(k, active, d, f, imp, wn, v_c):
         return _impacts_of_contact(
             k,
             ts_safe,
@@ -790,19 +807,21 @@ def _simulate_span(scene, law, t_span, friction, settings, n_save):
             f,
             imp,
             wn,
+            v_c,
             h["q_dot"],
             lambda rows: local(k, rows),
             settings.max_impacts,
         )
 
     # All contacts at once (vmapped: the field is traced once, not per contact).
-    per = jax.vmap(one_contact, in_axes=(0, 1, 1, 1, 1, 1))(
+    per = jax.vmap(one_contact, in_axes=(0, 1, 1, 1, 1, 1, 1))(
         jnp.arange(nc),
         active,
         h["d"],
         h["f_n"],
         acc[:, 1 : 1 + nc] * p.impulse_unit,
         acc[:, 1 + nc : 1 + 2 * nc] * p.energy,
+        h["v_c_each"],
     )
     count = jnp.sum(per.pop("count"))
     merged = {key: v.reshape((-1,) + v.shape[2:]) for key, v in per.items()}
@@ -873,7 +892,10 @@ def simulate_span(
 
     **Returns:** a :class:`SpanResult`.  ``jax.jit``, ``jax.grad`` and
     ``jax.vmap`` compose with it; every number of the scene, law and friction
-    is a traced field.
+    is a traced field.  Known limit: with :class:`JacksonGreen` the gradients
+    are finite but converge poorly with the tolerance (the switch of the
+    maximum-compression state where the surfaces meet; benchmarks/RESULTS.md):
+    take JG gradients from :func:`simulate`, or use Hertz/ADAMS in spans.
     """
     if not isinstance(scene, AbstractMechanism):
         raise TypeError(

@@ -172,7 +172,10 @@ class BoundJacksonGreen(AbstractBoundLaw):
         """JG-10 with the restitution radius of JG-9, written as
         ``F = F_m ((d - d_r)/(d_m - d_r))^(3/2)``, so unloading starts at ``F_m``."""
         d_r = self.residual_deflection(d_m)
-        ratio = safe_div(d - d_r, d_m - d_r, 1e-300)
+        # Below 1e-12 of d_c there is no dent to unload from.  (A bound near
+        # the underflow limit let the derivative -num/den^2 overflow where a
+        # span solve carries a vanishing d_m between impacts: inf * 0 = NaN.)
+        ratio = safe_div(d - d_r, d_m - d_r, 1e-12 * self.d_c)
         return f_m * safe_pow(ratio, self.law.unloading_exponent)
 
     def restitution_radius(self, d_m, f_m):
