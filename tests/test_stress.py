@@ -106,7 +106,7 @@ def check_normal(good, v, m, tol):
 
 @pytest.mark.slow
 @pytest.mark.parametrize(
-    "method, n, tol", [("quadrature", 1650, 1e-6), ("smooth", 150, 1e-6)]
+    "method, n, tol", [("quadrature", 1700, 1e-6), ("smooth", 100, 1e-6)]
 )
 def test_normal_impacts(method, n, tol):
     v, e, m, s_y = normal_inputs(n)
