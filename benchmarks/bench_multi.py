@@ -201,14 +201,7 @@ def main():
     short = di.SpanSettings(max_steps=4096, max_impacts=8)
 
     def first(p, settings):
-        clearance, stiffness = p
-        r = di.simulate_span(
-            di.scenes.SliderCrank(clearance=clearance),
-            di.Hertz(stiffness=stiffness),
-            (0.0, 0.03),
-            friction=di.Friction(MU),
-            settings=settings,
-        )
+        r = crank_span(p[0], p[1], MU, 0.03, settings)
         return jnp.stack([r.impacts.peak_force[0], r.impacts.impulse[0]])
 
     p0 = jnp.array([3e-5, float(sc.hertz_stiffness)])
@@ -236,6 +229,17 @@ def main():
     plot(rows, mats)
 
 
+def crank_span(clearance, stiffness, mu, t1, settings):
+    """The default slider-crank from rest over ``(0, t1)``, Hertz joint."""
+    return di.simulate_span(
+        di.scenes.SliderCrank(clearance=clearance),
+        di.Hertz(stiffness=stiffness),
+        (0.0, t1),
+        friction=di.Friction(mu),
+        settings=settings,
+    )
+
+
 def horizon_gradients(k0, t1=0.2):
     """``jax.jacrev`` (default settings) of the crank angle at ``t1``, the
     total joint impulse and the third impact's peak force w.r.t. clearance,
@@ -246,14 +250,7 @@ def horizon_gradients(k0, t1=0.2):
     default = di.SpanSettings(max_steps=8192, max_impacts=16)
 
     def outputs(p, settings):
-        clearance, stiffness, mu = p
-        r = di.simulate_span(
-            di.scenes.SliderCrank(clearance=clearance),
-            di.Hertz(stiffness=stiffness),
-            (0.0, t1),
-            friction=di.Friction(mu),
-            settings=settings,
-        )
+        r = crank_span(p[0], p[1], p[2], t1, settings)
         im = r.impacts
         return jnp.stack([r.q[0], jnp.sum(im.impulse), im.peak_force[2]]), im.count
 

@@ -645,6 +645,7 @@ def _history(p: _Span, taus, ys, valid, y0, e0):
         w_n = jnp.sum(acc[1 + nc : 1 + 2 * nc]) * p.energy
         w_f = jnp.sum(acc[1 + 2 * nc :]) * p.energy
         out = p.scene.report(t, q, q_dot, f_n, f_t)
+        v_c_each = p.elastic_energy(d)
         return dict(
             q=q,
             q_dot=q_dot,
@@ -657,8 +658,8 @@ def _history(p: _Span, taus, ys, valid, y0, e0):
             w_a=w_a,
             w_n=w_n,
             w_f=w_f,
-            v_c=jnp.sum(p.elastic_energy(d)),
-            v_c_each=p.elastic_energy(d),
+            v_c=jnp.sum(v_c_each),
+            v_c_each=v_c_each,
             impulse=impulse,
             outputs=out,
             threshold=p.threshold(d_m) if p.hysteretic else jnp.zeros_like(d),
