@@ -20,9 +20,12 @@ import pathlib
 import time
 
 import equinox as eqx
+import jax
 import numpy as np
 
 import diffimpact as di
+
+jax.config.update("jax_enable_x64", True)  # diffimpact is validated in float64
 
 ROOT = pathlib.Path(__file__).resolve().parent.parent
 DATA = ROOT / "data"

@@ -31,6 +31,8 @@ from _report import machine_line, markdown_table
 
 import diffimpact as di
 
+jax.config.update("jax_enable_x64", True)  # diffimpact is validated in float64
+
 RADIUS, DENSITY = 5e-3, 7850.0
 MASS = 4.0 / 3.0 * np.pi * RADIUS**3 * DENSITY
 SOLVERS = {

@@ -34,6 +34,8 @@ from scipy.integrate import solve_ivp
 import diffimpact as di
 from diffimpact._multi import _setup
 
+jax.config.update("jax_enable_x64", True)  # diffimpact is validated in float64
+
 HERE = pathlib.Path(__file__).parent
 T_COST = 0.3  # [s] span of the cost runs
 T_MAT = 1.0  # [s] span of the material comparison

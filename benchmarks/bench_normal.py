@@ -40,6 +40,8 @@ from scipy.integrate import solve_ivp
 
 import diffimpact as di
 
+jax.config.update("jax_enable_x64", True)  # diffimpact is validated in float64
+
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402  (after choosing the backend)
 

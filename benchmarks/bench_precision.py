@@ -10,7 +10,7 @@ float64 quadrature, and the throughput of ``jax.grad`` of the batch-mean COR
 with respect to the yield strengths (one reverse pass through the whole batch).
 
 In float32 the solver tolerances are floored at 100 float32 epsilons (1.2e-5)
-and the quadrature path runs in float64 when JAX has x64 (the default), then
+and the quadrature path runs in float64 when JAX has x64 (this script enables it), then
 returns float32.
 
 Usage: ``python benchmarks/bench_precision.py [--n 4096]``
@@ -27,6 +27,8 @@ import numpy as np
 from _report import machine_line, markdown_table
 
 import diffimpact as di
+
+jax.config.update("jax_enable_x64", True)  # diffimpact is validated in float64
 
 RADIUS, DENSITY = 5e-3, 7850.0
 MASS = 4.0 / 3.0 * np.pi * RADIUS**3 * DENSITY

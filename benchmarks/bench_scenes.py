@@ -71,6 +71,8 @@ from diffimpact._planar_solve import _Planar, _planar_field, _separation, planar
 from diffimpact._simulate import _bind, _y0
 from diffimpact.scenes._base import NormalProblem
 
+jax.config.update("jax_enable_x64", True)  # diffimpact is validated in float64
+
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402  (after choosing the backend)
 
@@ -364,7 +366,7 @@ class PlanarProblem:
 def planar_problem(scene, law, friction, settings: di.SolverSettings) -> PlanarProblem:
     """The set-up of ``diffimpact._planar_solve.solve_planar`` (its own
     ``planar_setup``), for a law without a running peak force."""
-    args, y0, weights = planar_setup(scene, law, friction, settings)
+    args, y0, weights, _ = planar_setup(scene, law, friction, settings)
     if args.bound.rate_dependent:
         raise NotImplementedError(
             "the peak-force state is error-weighted, not left out"

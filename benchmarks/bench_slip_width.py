@@ -40,6 +40,8 @@ import jax
 
 import diffimpact as di
 
+jax.config.update("jax_enable_x64", True)  # diffimpact is validated in float64
+
 sys.path.insert(0, str(pathlib.Path(__file__).parent))
 import sharp_stickslip as sharp  # noqa: E402
 

@@ -26,6 +26,8 @@ import numpy as np
 
 import diffimpact as di
 
+jax.config.update("jax_enable_x64", True)  # diffimpact is validated in float64
+
 LAW = di.JacksonGreen()
 
 

@@ -22,6 +22,8 @@ import numpy as np
 
 import diffimpact as di
 
+jax.config.update("jax_enable_x64", True)  # diffimpact is validated in float64
+
 TRUTH = {"yield_strength": 450e6, "mu": 0.15, "mu_v": 30.0, "ep_exponent": 1.1}
 HEIGHTS_M = [0.05, 0.2, 0.5, 1.0]
 ANGLES_DEG = [40.0, 50.0, 60.0, 70.0, 80.0]

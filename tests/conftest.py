@@ -1,12 +1,17 @@
-"""Shared fixtures.  Importing diffimpact enables float64 (jax_enable_x64)."""
+"""Shared fixtures.  The physics is tested in float64: diffimpact leaves JAX's
+configuration to its host program, so the test suite (the host here) enables
+it before any array exists."""
 
 import math
 
 import jax
-import numpy as np
-import pytest
 
-import diffimpact as di
+jax.config.update("jax_enable_x64", True)
+
+import numpy as np  # noqa: E402
+import pytest  # noqa: E402
+
+import diffimpact as di  # noqa: E402
 
 # Tight event solve: the exact phase-switching reference of the smooth method.
 TIGHT = di.SolverSettings(rtol=1e-13, atol=1e-15)
@@ -53,4 +58,4 @@ def assert_grad_matches_fd(f, p0, reference, tol=1e-5, step=1e-4):
 
 @pytest.fixture(autouse=True, scope="session")
 def _x64():
-    assert jax.config.jax_enable_x64, "diffimpact must enable float64 on import"
+    assert jax.config.jax_enable_x64, "the test suite runs in float64"

@@ -64,7 +64,9 @@ def test_chunked_equals_one_vmap(chunk_size, one_vmap):
         assert out[name].shape == (35,) and isinstance(out[name], np.ndarray)
         np.testing.assert_array_equal(out[name], one_vmap[name], err_msg=name)
     assert np.all(np.isfinite(out["cor_newton"]))
-    assert out["cor_newton"].min() < 0.5 and out["cor_newton"].max() == 1.0
+    # Elastic rows: COR 1 to rounding (a few ulps, whatever XLA's fusion).
+    assert out["cor_newton"].min() < 0.5
+    assert out["cor_newton"].max() == pytest.approx(1.0, abs=4e-16)
 
 
 def test_progress_bar(capsys):
@@ -82,6 +84,7 @@ _SCRIPT = textwrap.dedent(
     """
     import json, sys
     import jax
+    jax.config.update("jax_enable_x64", True)
     pid, nproc, port, out = int(sys.argv[1]), int(sys.argv[2]), sys.argv[3], sys.argv[4]
     if nproc > 1:
         jax.distributed.initialize(f"localhost:{port}", nproc, pid)

@@ -1,18 +1,38 @@
-"""Input validation in two tiers (the optimistix / diffrax habit).
+"""Input validation that holds eagerly and under ``jit``, ``vmap`` and ``grad``.
 
-Concrete values are checked eagerly and raise ``ValueError`` naming the field
-and the expected form, before anything is traced or solved.  Traced values
-(inside ``jit`` / ``vmap`` / ``grad``) cannot be inspected in Python, so they
-are guarded with ``equinox.error_if``, which raises the same message at run
-time instead of letting a NaN through.
+A module whose numbers have a domain (a modulus > 0, a Poisson ratio in
+(-1, 0.5), ...) derives from :class:`AbstractValidated` and lists its checks
+in ``_checks()``.  They run twice, with the same message:
+
+- at construction, when the values are concrete: ``ValueError`` naming the
+  field and the expected form, before anything is traced or solved;
+- at the entry of every solve (:func:`guard`), which threads the whole input
+  pytree through one ``equinox.branched_error_if``.  The solve then reads the
+  guarded values, so the check cannot be removed as dead code (an
+  ``equinox.error_if`` whose return value is unused is dropped by JAX), and
+  XLA runs it before anything that depends on the inputs: a traced bad value
+  raises the same message as an ``EquinoxRuntimeError`` instead of reaching
+  the solver.  This is how diffrax guards ``dt0``.
 """
 
 from __future__ import annotations
+
+import math
+from collections.abc import Iterable
+from typing import NamedTuple
 
 import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
+
+
+class Check(NamedTuple):
+    """One domain check: ``ok`` (a boolean array) must hold for ``value``."""
+
+    value: object
+    ok: object
+    message: str
 
 
 def as_float(x):
@@ -27,32 +47,141 @@ def _is_traced(x) -> bool:
     return isinstance(x, jax.core.Tracer)
 
 
-def require(x, ok, message: str):
-    """Return ``x`` after checking the boolean array ``ok``.
+def is_traced(tree) -> bool:
+    """Whether any leaf of ``tree`` is a JAX tracer (inside jit/vmap/grad)."""
+    return any(_is_traced(x) for x in jax.tree.leaves(tree))
 
-    ``ok`` is evaluated eagerly when concrete (``ValueError(message)``), and
-    turned into an ``equinox.error_if`` guard on ``x`` when traced.
-    """
+
+def _unit(unit: str) -> str:
+    return f" in {unit}" if unit else ""
+
+
+def check(value, ok, message: str) -> Check:
+    return Check(value, ok, message)
+
+
+def finite(x, name: str) -> Check:
+    return Check(x, jnp.isfinite(x), f"`{name}` must be finite")
+
+
+def positive(x, name: str, unit: str = "") -> Check:
+    return Check(
+        x,
+        jnp.isfinite(x) & (x > 0),
+        f"`{name}` must be a finite number > 0{_unit(unit)}",
+    )
+
+
+def nonnegative(x, name: str, unit: str = "") -> Check:
+    return Check(
+        x,
+        jnp.isfinite(x) & (x >= 0),
+        f"`{name}` must be a finite number >= 0{_unit(unit)}",
+    )
+
+
+def raise_failed(checks: Iterable[Check]) -> None:
+    """Raise ``ValueError`` for the first concrete check that fails (traced
+    checks are skipped: :func:`guard` handles them)."""
+    for c in checks:
+        if _is_traced(c.ok) or _is_traced(c.value):
+            continue
+        if not bool(np.all(np.asarray(c.ok))):
+            raise ValueError(f"{c.message} (got {_show(c.value)})")
+
+
+def _show(value) -> str:
+    a = np.asarray(value)
+    if a.ndim == 0:
+        return repr(a.item())
+    return np.array2string(a, threshold=8)
+
+
+class AbstractValidated(eqx.Module):
+    """A module with domain checks on its fields (module docstring)."""
+
+    def _checks(self) -> list[Check]:
+        return []
+
+    def __check_init__(self):
+        raise_failed(self._checks())
+
+
+def collect_checks(tree) -> list[Check]:
+    """Every check of every :class:`AbstractValidated` module inside ``tree``."""
+    out: list[Check] = []
+
+    def visit(node):
+        if isinstance(node, AbstractValidated):
+            out.extend(node._checks())
+        children = jax.tree.leaves(
+            node,
+            is_leaf=lambda x: x is not node and isinstance(x, AbstractValidated),
+        )
+        for child in children:
+            if isinstance(child, AbstractValidated):
+                visit(child)
+
+    visit(tree)
+    return out
+
+
+def guard(tree, extra: Iterable[Check] = ()):
+    """Return ``tree`` with every check of its modules (and ``extra``) applied.
+
+    Concrete failures raise ``ValueError`` at once.  Traced checks become one
+    ``equinox.branched_error_if`` on the whole of ``tree`` (the first failing
+    check's message is raised); use the returned tree, never the argument, so
+    the check stays in the computation."""
+    checks = [*collect_checks(tree), *extra]
+    raise_failed(checks)
+    traced = [c for c in checks if _is_traced(c.ok) or _is_traced(c.value)]
+    if not traced or not any(eqx.is_array(x) for x in jax.tree.leaves(tree)):
+        return tree
+    bad = jnp.stack([jnp.any(jnp.logical_not(c.ok)) for c in traced])
+    index = jnp.argmax(bad)
+    return eqx.branched_error_if(tree, jnp.any(bad), index, [c.message for c in traced])
+
+
+def require(x, ok, message: str):
+    """Return ``x`` after checking the boolean array ``ok`` (eagerly:
+    ``ValueError``; traced: an ``equinox.error_if`` guard on ``x``, so use the
+    returned value)."""
     if _is_traced(x) or _is_traced(ok):
         return eqx.error_if(x, jnp.logical_not(ok), message)
-    if not bool(np.all(np.asarray(ok))):
-        raise ValueError(f"{message} (got {np.asarray(x)!r})")
+    raise_failed([Check(x, ok, message)])
     return x
 
 
 def require_finite(x, name: str):
-    return require(x, jnp.isfinite(x), f"`{name}` must be finite")
+    return require(*finite(x, name))
 
 
 def require_positive(x, name: str, unit: str = ""):
-    u = f" in {unit}" if unit else ""
-    return require(
-        x, jnp.isfinite(x) & (x > 0), f"`{name}` must be a finite number > 0{u}"
-    )
+    return require(*positive(x, name, unit))
 
 
 def require_nonnegative(x, name: str, unit: str = ""):
-    u = f" in {unit}" if unit else ""
-    return require(
-        x, jnp.isfinite(x) & (x >= 0), f"`{name}` must be a finite number >= 0{u}"
+    return require(*nonnegative(x, name, unit))
+
+
+def static_positive(owner: str, name: str, value, allow_none=False) -> None:
+    """A static (Python) setting: a finite number > 0."""
+    if value is None and allow_none:
+        return
+    ok = (
+        isinstance(value, int | float)
+        and not isinstance(value, bool)
+        and math.isfinite(value)
     )
+    if not (ok and value > 0):
+        raise ValueError(f"`{owner}.{name}` must be a finite number > 0, got {value!r}")
+
+
+def static_count(owner: str, name: str, value, minimum: int = 1) -> None:
+    """A static (Python) integer setting >= ``minimum``."""
+    is_int = isinstance(value, int | np.integer) and not isinstance(value, bool)
+    if not (is_int and value >= minimum):
+        raise ValueError(
+            f"`{owner}.{name}` must be an integer >= {minimum}, got {value!r}"
+        )

@@ -6,6 +6,7 @@ The CLI only calls the public API (style.md, habit 9).
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import math
 import sys
 import time
@@ -21,9 +22,7 @@ def _law(name: str, cor: float | None):
     if name == "hertz":
         return di.Hertz()
     if cor is None:
-        raise SystemExit(
-            f"error: --law {name} needs --cor (target restitution in (0, 1])"
-        )
+        raise ValueError(f"--law {name} needs --cor (target restitution in (0, 1])")
     cls = {
         "hunt-crossley": di.HuntCrossley,
         "lankarani-nikravesh": di.LankaraniNikravesh,
@@ -124,52 +123,169 @@ def demo(args) -> int:
     return 0
 
 
-def simulate_cmd(args) -> int:
+_BODY_DEFAULTS = {"body": (208e9, 0.3, 2e9), "flat": (205e9, 0.29, 355e6)}
+_MATERIAL_FLAGS = (
+    ("modulus", "youngs_modulus"),
+    ("poisson", "poisson_ratio"),
+    ("yield", "yield_strength"),
+)
+
+
+def _material_flags(args) -> dict:
+    """``{"scene.body.youngs_modulus": value, ...}`` of the material flags given."""
+    out = {}
+    for who in ("body", "flat"):
+        for flag, field in _MATERIAL_FLAGS:
+            value = getattr(args, f"{who}_{flag}")
+            if value is not None:
+                out[f"scene.{who}.{field}"] = value
+    return out
+
+
+def _refuse(args, flags, why: str) -> None:
+    given = [f"--{f.replace('_', '-')}" for f in flags if getattr(args, f) is not None]
+    if given:
+        raise ValueError(f"{', '.join(given)}: {why}")
+
+
+def _normal_experiment(args):
+    """The normal-impact experiment the flags describe (defaults: a 5 mm
+    bearing-steel ball on an AISI 1045 flat at 1 m/s)."""
     import diffimpact as di
 
-    if args.scene != "normal_impact" or args.input or args.set:
-        return _simulate_scene(args)
-
-    body = di.Material(args.body_modulus, args.body_poisson, args.body_yield)
-    flat = di.Material(args.flat_modulus, args.flat_poisson, args.flat_yield)
+    mats = {}
+    for who, defaults in _BODY_DEFAULTS.items():
+        values = [getattr(args, f"{who}_{flag}") for flag, _ in _MATERIAL_FLAGS]
+        values = [d if v is None else v for v, d in zip(values, defaults, strict=True)]
+        mats[who] = di.Material(*values, density=args.density or 7850.0)
+    radius = 5e-3 if args.radius is None else args.radius
     mass = args.mass
     if mass is None:
-        mass = 4.0 / 3.0 * math.pi * args.radius**3 * args.density
+        mass = 4.0 / 3.0 * math.pi * radius**3 * (args.density or 7850.0)
+    elif args.density is not None:
+        raise ValueError("--density sets the mass from the radius; give it or --mass")
     scene = di.scenes.NormalImpact(
-        mass, args.radius, body, flat, args.velocity, args.gravity
+        mass,
+        radius,
+        mats["body"],
+        mats["flat"],
+        1.0 if args.velocity is None else args.velocity,
+        args.gravity or 0.0,
     )
-    law = _law(args.law, args.cor)
-    methods = (
-        [args.method] if args.method != "all" else ["smooth", "events", "quadrature"]
-    )
-    results, _ = _simulate_all(scene, law, methods)
-    print(_report(results))
-    return 0
+    return di.Experiment(scene, _law(args.law or "jackson-green", args.cor))
 
 
-def _simulate_scene(args) -> int:
-    """One impact of a registered scene, inputs given as CSV-style columns."""
+def _scene_experiment(args):
+    """A registered scene's built-in experiment, changed by the flags that
+    apply to it; a flag that does not apply is refused, never ignored."""
+    import equinox as eqx
+
     import diffimpact as di
+    from diffimpact._observables import set_parameters
+
+    _refuse(
+        args,
+        ("velocity", "density"),
+        f"apply to --scene normal_impact only; {args.scene} starts from its "
+        "own inputs (e.g. --input drop_height_m=0.3)",
+    )
+    experiment = di.Experiment.default(args.scene)
+    if args.law is not None:
+        experiment = eqx.tree_at(lambda e: e.law, experiment, _law(args.law, args.cor))
+    else:
+        _refuse(args, ("cor",), "applies with --law of a dissipative law only")
+    values = dict(_material_flags(args))
+    fields = {f.name for f in dataclasses.fields(experiment.scene)}
+    for name in ("mass", "radius", "gravity"):
+        value = getattr(args, name)
+        if value is None:
+            continue
+        if name not in fields:
+            raise ValueError(
+                f"--{name}: scene {args.scene} has no {name} (its inputs: see --input)"
+            )
+        values[f"scene.{name}"] = value
+    return set_parameters(experiment, values)
+
+
+def _describe(module, prefix: str = "") -> list[str]:
+    """``name = value`` of every number in ``module`` (recursively)."""
+    import equinox as eqx
+    import numpy as np
+
+    lines = []
+    for f in dataclasses.fields(module):
+        value = getattr(module, f.name)
+        name = f"{prefix}{f.name}"
+        if isinstance(value, eqx.Module) and dataclasses.is_dataclass(value):
+            lines.append(f"{name}: {type(value).__name__}")
+            lines += _describe(value, name + ".")
+        elif eqx.is_array(value) and np.ndim(value) == 0:
+            lines.append(f"{name} = {float(value):.6g}")
+    return lines
+
+
+def _print_used(experiment) -> None:
+    scene, law = experiment.scene, experiment.law
+    print(f"scene: {type(scene).__name__}")
+    for line in _describe(scene, "  "):
+        print(line)
+    print(f"law: {type(law).__name__}")
+    if experiment.friction is None:
+        print("friction: none")
+    else:
+        f = experiment.friction
+        print(f"friction: mu = {float(f.mu):.6g}, mu_v = {float(f.mu_v):.6g} N s/m")
+    print("(SI units: m, kg, s, Pa, rad)\n")
+
+
+def simulate_cmd(args) -> int:
+    import diffimpact as di
+    from diffimpact._checks import guard
     from diffimpact._cli_fit import _number, _pairs
     from diffimpact._data import parse_column
-    from diffimpact._observables import check_rows, scene_spec, set_parameters
+    from diffimpact._observables import scene_spec, set_parameters, with_inputs
 
-    experiment = di.Experiment.default(args.scene)
+    if args.cor is not None and args.law in (None, "jackson-green", "hertz"):
+        raise ValueError(
+            f"--cor applies to the dissipative laws only (--law hunt-crossley, "
+            f"lankarani-nikravesh, flores), not to {args.law or 'jackson-green'}"
+        )
+    if args.scene == "normal_impact":
+        experiment = _normal_experiment(args)
+    else:
+        experiment = _scene_experiment(args)
     fixed = {k: _number(v, "set") for k, v in _pairs(args.set, "set").items()}
     experiment = set_parameters(experiment, fixed)
+    spec = scene_spec(args.scene)
     inputs = {}
     for header, value in _pairs(args.input, "input").items():
         col = parse_column(header, "--input: ")
+        if col.quantity not in spec.inputs or col.is_sigma:
+            raise ValueError(
+                f"--input {header}: scene {args.scene} takes "
+                f"{sorted(spec.inputs)} (with units, e.g. angle_deg=30)"
+            )
+        if col.quantity == "impact_velocity" and args.velocity is not None:
+            raise ValueError("give the approach speed once: --velocity or --input")
         inputs[col.quantity] = _number(value, "input") * col.factor
-    if args.scene == "normal_impact" and "impact_velocity" not in inputs:
-        inputs["impact_velocity"] = args.velocity
-    spec = scene_spec(args.scene)
-    for q in spec.required:  # inputs not given keep the scene's defaults
-        if q not in inputs:
-            inputs[q] = float(getattr(experiment.scene, spec.inputs[q]))
-    check_rows(experiment, {q: [v] for q, v in inputs.items()}, "--input")
-    out = di.predict(experiment, inputs)
-    print(f"{args.scene}: " + ", ".join(f"{q} = {v:g}" for q, v in inputs.items()))
+    # Inputs not given keep the scene's values; the scene's checks run on
+    # the result before any solve (ValueError naming the field).
+    experiment = with_inputs(experiment, inputs)
+    guard((experiment.scene, experiment.law, experiment.friction))
+    _print_used(experiment)
+    if args.scene == "normal_impact":
+        methods = (
+            ["smooth", "events", "quadrature"]
+            if args.method == "all"
+            else [args.method or "smooth"]
+        )
+        results, _ = _simulate_all(experiment.scene, experiment.law, methods)
+        print(_report(results))
+        return 0
+    if args.method not in (None, "smooth"):
+        raise ValueError(f"--method: scene {args.scene} is solved by 'smooth' only")
+    out = di.predict(experiment)
     rows = [[q, f"{float(v):.8g}"] for q, v in out.items()]
     print(_table(rows, ["output (SI)", "value"]))
     return 0
@@ -209,30 +325,56 @@ def main(argv=None) -> int:
         help="a parameter by name in SI, e.g. mu=0.2 or yield_strength=4e8",
     )
     s.add_argument(
-        "--velocity", type=float, default=1.0, help="approach speed [m/s] (> 0)"
+        "--velocity",
+        type=float,
+        default=None,
+        help="approach speed [m/s] (normal_impact; default 1)",
     )
-    s.add_argument("--radius", type=float, default=5e-3, help="sphere radius [m]")
+    s.add_argument(
+        "--radius", type=float, default=None, help="sphere radius [m] (default 5e-3)"
+    )
     s.add_argument(
         "--mass", type=float, default=None, help="mass [kg] (default: from density)"
     )
-    s.add_argument("--density", type=float, default=7850.0, help="[kg/m^3]")
     s.add_argument(
-        "--gravity", type=float, default=0.0, help="[m/s^2] along the approach"
+        "--density",
+        type=float,
+        default=None,
+        help="[kg/m^3] for the mass of normal_impact (default 7850)",
     )
-    s.add_argument("--law", choices=_LAWS, default="jackson-green")
+    s.add_argument(
+        "--gravity", type=float, default=None, help="[m/s^2] along the approach"
+    )
+    s.add_argument(
+        "--law", choices=_LAWS, default=None, help="normal law (default jackson-green)"
+    )
     s.add_argument(
         "--cor", type=float, default=None, help="target COR (dissipative laws)"
     )
     s.add_argument(
-        "--method", choices=("smooth", "events", "quadrature", "all"), default="smooth"
+        "--method",
+        choices=("smooth", "events", "quadrature", "all"),
+        default=None,
+        help="solver (default smooth; 'all' compares the three, normal_impact)",
     )
-    for who, e, nu, sy in (("body", 208e9, 0.3, 2e9), ("flat", 205e9, 0.29, 355e6)):
+    for who, (e, nu, sy) in _BODY_DEFAULTS.items():
         s.add_argument(
-            f"--{who}-modulus", type=float, default=e, help="Young's modulus [Pa]"
+            f"--{who}-modulus",
+            type=float,
+            default=None,
+            help=f"Young's modulus [Pa] of the {who} (normal_impact default {e:g})",
         )
-        s.add_argument(f"--{who}-poisson", type=float, default=nu, help="Poisson ratio")
         s.add_argument(
-            f"--{who}-yield", type=float, default=sy, help="yield strength [Pa]"
+            f"--{who}-poisson",
+            type=float,
+            default=None,
+            help=f"Poisson ratio of the {who} (normal_impact default {nu:g})",
+        )
+        s.add_argument(
+            f"--{who}-yield",
+            type=float,
+            default=None,
+            help=f"yield strength [Pa] of the {who} (normal_impact default {sy:g})",
         )
     s.set_defaults(func=simulate_cmd)
 
@@ -242,11 +384,38 @@ def main(argv=None) -> int:
     _cli_sweep.register(sub)
 
     args = parser.parse_args(argv)
+    return run_command(args.func, args)
+
+
+def run_command(func, args) -> int:
+    """Run a subcommand; every error becomes one message on stderr and a
+    non-zero exit status, never a traceback."""
+    import jax
+
+    # The CLI is a program of its own: it may choose float64 for itself.
+    jax.config.update("jax_enable_x64", True)
     try:
-        return args.func(args)
-    except ValueError as err:  # bad input: say which field, no traceback
-        print(f"error: {err}", file=sys.stderr)
+        return func(args)
+    except (ValueError, TypeError, FileExistsError) as err:  # bad input
+        print(f"error: {_message(err)}", file=sys.stderr)
         return 2
+    except KeyboardInterrupt:
+        print("interrupted", file=sys.stderr)
+        return 130
+    except Exception as err:  # a failed solve or fit: say what, not where
+        print(f"error: {_message(err)}", file=sys.stderr)
+        return 1
+
+
+def _message(err: BaseException) -> str:
+    """The user-facing line of an error: for a check that fired inside a
+    compiled solve, its message without JAX's traceback text around it."""
+    text = str(err)
+    marker = "_EquinoxRuntimeError: "
+    if marker in text:
+        text = text.split(marker, 1)[1]
+    lines = [line.strip() for line in text.strip().splitlines() if line.strip()]
+    return lines[0] if lines else type(err).__name__
 
 
 if __name__ == "__main__":

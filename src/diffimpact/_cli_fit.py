@@ -93,6 +93,11 @@ def run(args) -> int:
     from diffimpact._observables import set_parameters
 
     out = args.out or "fit-" + os.path.splitext(os.path.basename(args.data))[0]
+    if os.path.exists(out) and not os.path.isdir(out):
+        raise ValueError(
+            f"--out {out}: is a file, not a folder; give a folder for "
+            f"{', '.join(_OUTPUT_FILES)}"
+        )
     existing = [f for f in _OUTPUT_FILES if os.path.exists(os.path.join(out, f))]
     if existing and not args.force:
         raise ValueError(
@@ -122,6 +127,13 @@ def run(args) -> int:
             di.Friction(friction.mu, friction.mu_v, compliant=True),
         )
     fixed = {k: _number(v, "set") for k, v in _pairs(args.set, "set").items()}
+    free = [f.strip() for f in args.free.split(",") if f.strip()]
+    both = sorted(set(free) & set(fixed))
+    if both:
+        raise ValueError(
+            f"{', '.join(both)}: given both as --free and as --set; a parameter is "
+            "either fitted (use --start for its start value) or fixed"
+        )
     experiment = set_parameters(experiment, fixed)
     start = {k: _number(v, "start") for k, v in _pairs(args.start, "start").items()}
     bounds = {}
@@ -148,6 +160,7 @@ def run(args) -> int:
             {"data": os.path.abspath(args.data), "scene": scene, **result.to_dict()},
             fh,
             indent=2,
+            allow_nan=False,  # strict JSON: to_dict writes null for inf
         )
     write_residuals(result, os.path.join(out, "residuals.csv"))
     plot_fit(result, os.path.join(out, "fit.png"))
@@ -162,7 +175,7 @@ def write_residuals(result, path) -> None:
     with open(path, "w", newline="", encoding="utf-8") as fh:
         w = csv.writer(fh)
         w.writerow(
-            ["row", *result.inputs, "quantity", "measured_si", "predicted_si"]
+            ["line", *result.inputs, "quantity", "measured_si", "predicted_si"]
             + ["sigma_si", "weighted_residual"]
         )
         for i in range(result.measured.shape[0]):
@@ -170,7 +183,8 @@ def write_residuals(result, path) -> None:
                 if result.measured[i, k] != result.measured[i, k]:  # NaN: no data
                     continue
                 w.writerow(
-                    [i + 1, *(repr(float(v[i])) for v in result.inputs.values()), q]
+                    [_line(result, i)]
+                    + [*(repr(float(v[i])) for v in result.inputs.values()), q]
                     + [
                         repr(float(result.measured[i, k])),
                         repr(float(result.predicted[i, k])),
@@ -178,6 +192,18 @@ def write_residuals(result, path) -> None:
                         repr(float(result.residuals[i, k])),
                     ]
                 )
+
+
+def _line(result, i: int) -> int:
+    """The line in the data file of row ``i`` (how every output names it)."""
+    return int(result.lines[i]) if result.lines is not None else i + 1
+
+
+def _unit(quantity: str) -> str:
+    from diffimpact._data import _SI, QUANTITIES
+
+    dim = QUANTITIES[quantity].dimension if quantity in QUANTITIES else ""
+    return "" if dim in ("", "dimensionless") else f" [{_SI[dim]}]"
 
 
 def plot_fit(result, path) -> None:
@@ -189,18 +215,31 @@ def plot_fit(result, path) -> None:
 
     nq = len(result.quantities)
     fig, axes = plt.subplots(2, nq, figsize=(3.6 * nq, 6.4), squeeze=False)
-    rows = np.arange(1, result.measured.shape[0] + 1)
+    rows = np.asarray([_line(result, i) for i in range(result.measured.shape[0])])
+    measured_sigma = result.sigma_measured or (False,) * len(result.quantities)
     for k, q in enumerate(result.quantities):
         m, p = result.measured[:, k], result.predicted[:, k]
+        unit = _unit(q)
         ax = axes[0, k]
-        ax.errorbar(m, p, xerr=result.sigma[:, k], fmt="o", ms=4, lw=0.8)
+        if measured_sigma[k]:  # the file's own uncertainties
+            ax.errorbar(m, p, xerr=result.sigma[:, k], fmt="o", ms=4, lw=0.8)
+        else:  # no measured sigma: no error bars (the RMS scale is not one)
+            ax.plot(m, p, "o", ms=4)
         lo, hi = np.nanmin([m, p]), np.nanmax([m, p])
         ax.plot([lo, hi], [lo, hi], "k--", lw=0.8)
-        ax.set(title=q, xlabel="measured (SI)", ylabel="predicted (SI)")
+        ax.set(
+            title=f"{q.replace('_', ' ')}{unit}",
+            xlabel=f"measured{unit}",
+            ylabel=f"predicted{unit}",
+        )
         ax = axes[1, k]
         ax.axhline(0.0, color="k", lw=0.8)
         ax.plot(rows, result.residuals[:, k], "o", ms=4)
-        ax.set(xlabel="row", ylabel="(predicted - measured) / sigma")
+        weight = "sigma" if measured_sigma[k] else "RMS of measured"
+        ax.set(
+            xlabel="line in the data file",
+            ylabel=f"(predicted - measured) / {weight}",
+        )
     fig.suptitle(
         ", ".join(
             f"{n} = {v:.4g} ± {s:.2g}"
@@ -244,7 +283,7 @@ def plot_loop(result, path) -> str:
     ax.set(
         xlabel="interference d [um]",
         ylabel="normal force [N]",
-        title=f"row {i + 1}: {label} (SI)",
+        title=f"line {_line(result, i)}: {label} (SI)",
     )
     ax.title.set_fontsize(8)
     fig.tight_layout()

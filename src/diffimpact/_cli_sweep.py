@@ -20,12 +20,12 @@ Writes ``OUT/sweep.csv`` and ``OUT/sweep.png`` (a heat map for two swept axes,
 a line plot for one, a scatter plot otherwise) and never overwrites either
 without ``--force``.
 
-Several machines: ``jax.distributed.initialize()`` must run before anything
-initialises JAX's backend, and importing diffimpact does (module-level
-arrays), so join first and then call the CLI, on every machine::
+Several machines: ``--distributed`` joins JAX's multi-process runtime
+(``jax.distributed.initialize()``) before anything initialises JAX's backend
+(importing diffimpact creates no arrays); run the same command on every
+machine::
 
-    python -c "import jax; jax.distributed.initialize(); \
-               from diffimpact._cli import main; main()" sweep ... --out DIR
+    diffimpact sweep ... --distributed --out DIR
 
 Every process computes its devices' rows; process 0 writes the files.
 """
@@ -232,19 +232,35 @@ def _open_new(path: Path, force: bool, binary: bool = False):
 
 
 def _write_csv(path: Path, inputs, outputs, force: bool):
+    import io
+
     import numpy as np
+
+    from ._result import result_name
 
     names = [(n, u) for n, _, u, _ in _INPUTS if n in inputs]
     header = [_column(n, u) for n, u in names] + [_column(n, u) for n, u, _ in _OUTPUTS]
     table = np.column_stack(
         [inputs[n] for n, _ in names] + [outputs[n] for n, _, _ in _OUTPUTS]
     )
+    codes = outputs["result"]
+    labels = {int(c): result_name(c) for c in np.unique(codes)}
     with _open_new(path, force) as f:
-        f.write(",".join(header) + "\n")
+        f.write(",".join([*header, "result"]) + "\n")
         # 12 significant digits: the quadrature is exact to about 1e-11.
-        # Written in blocks, so the formatted text never holds the whole table.
+        # Written in blocks, so the formatted text never holds the whole table;
+        # each row ends with its result ("successful", "outside_model", ...).
         for start in range(0, len(table), 65536):
-            np.savetxt(f, table[start : start + 65536], fmt="%.12g", delimiter=",")
+            block = io.StringIO()
+            np.savetxt(block, table[start : start + 65536], fmt="%.12g", delimiter=",")
+            rows = block.getvalue().splitlines()
+            tail = codes[start : start + 65536]
+            f.write(
+                "".join(
+                    f"{row},{labels[int(c)]}\n"
+                    for row, c in zip(rows, tail, strict=True)
+                )
+            )
 
 
 def _plot(path: Path, inputs, outputs, swept, log, shape, law: str, force: bool):
@@ -375,6 +391,14 @@ def _run(args) -> int:
 
     defaults = {k: v for k, v in NORMAL_DEFAULTS.items() if k not in inputs}
     cor = outputs["cor_newton"]
+    codes = outputs["result"]
+    failed = codes != 0
+    cor_ok = cor[~failed]
+    cor_text = (
+        f"  COR (Newton) from {cor_ok.min():.6g} to {cor_ok.max():.6g}\n"
+        if cor_ok.size
+        else ""
+    )
     print(
         f"diffimpact sweep: {n:,} {args.law} normal impacts (quadrature) on "
         f"{len(jax.devices())} device(s), chunks of {min(chunk, n):,}\n"
@@ -385,7 +409,29 @@ def _run(args) -> int:
         + ("" if "mass" in inputs else ", mass=4/3 pi radius^3 density")
         + f"\n  wall time {wall:.2f} s (including compilation), "
         f"{n / wall:,.{0 if n / wall >= 100 else 2}f} impacts/s\n"
-        f"  COR (Newton) from {cor.min():.6g} to {cor.max():.6g}\n"
-        f"  wrote {paths[0]} and {paths[1]}"
+        + cor_text
+        + _failure_summary(codes)
+        + f"  wrote {paths[0]} and {paths[1]}"
     )
-    return 0
+    return 1 if failed.all() else 0
+
+
+def _failure_summary(codes) -> str:
+    """``  3 of 400 rows failed: 3 outside_model (...)`` or nothing."""
+    import numpy as np
+
+    from ._result import RESULTS, result_name
+
+    failed = codes[codes != 0]
+    if failed.size == 0:
+        return ""
+    values, counts = np.unique(failed, return_counts=True)
+    parts = []
+    for v, c in zip(values, counts, strict=True):
+        name = result_name(v)
+        why = RESULTS[getattr(RESULTS, name)].removeprefix("diffimpact: ")
+        parts.append(f"    {c:,} {name}: {why}")
+    return (
+        f"  {failed.size:,} of {codes.size:,} rows failed (NaN outputs, named in "
+        "the 'result' column):\n" + "\n".join(parts) + "\n"
+    )

@@ -71,10 +71,11 @@ class Quantity:
     role: str  # "input" or "output"
     nonnegative: bool
     doc: str
+    maximum: float = math.inf  # largest physically possible value (SI)
 
 
-def _q(name, dimension, role, nonnegative, doc):
-    return Quantity(name, dimension, role, nonnegative, doc)
+def _q(name, dimension, role, nonnegative, doc, maximum=math.inf):
+    return Quantity(name, dimension, role, nonnegative, doc, maximum)
 
 
 QUANTITIES: dict[str, Quantity] = {
@@ -103,13 +104,15 @@ QUANTITIES: dict[str, Quantity] = {
             "tangential velocity of the centre of mass after the impact",
         ),
         _q("angular_velocity", "angular_velocity", "output", False, "spin after"),
-        _q("cor_normal", "dimensionless", "output", True, "Newton's COR e_n"),
+        # A normal COR above 1 would be a rebound with more energy than the
+        # approach: no passive impact does that.
+        _q("cor_normal", "dimensionless", "output", True, "Newton's COR e_n", 1.0),
         _q(
             "cor_tangential",
             "dimensionless",
             "output",
             False,
-            "tangential COR e_t of the centre of mass (data.md A)",
+            "tangential COR e_t of the centre of mass",
         ),
         _q("max_force", "force", "output", True, "peak normal contact force"),
         _q("max_deflection", "length", "output", True, "maximum interference d_m"),
@@ -195,6 +198,8 @@ class ExperimentData:
     - `outputs`: quantity -> array ``(n,)``, NaN where a row did not measure it;
     - `sigmas`: quantity -> array ``(n,)`` (only where uncertainty columns exist);
     - `provenance`: the ``#`` lines before the header; `path`: the file.
+    - `lines`: the line number in the file of each row, shape ``(n,)``: every
+      message, residual file and plot names a row by it.
     """
 
     scene: str | None
@@ -204,6 +209,7 @@ class ExperimentData:
     provenance: str
     path: str
     columns: dict[str, Column]
+    lines: np.ndarray | None = None
 
     @property
     def n(self) -> int:
@@ -217,14 +223,15 @@ def load_experiments(path: str | os.PathLike) -> ExperimentData:
     Raises :class:`DataError` (a ``ValueError``) naming the file, the row (the
     line number in the file) and the column for: an empty file, no header or no
     rows, an unknown column or unit, a missing required value, a non-number, a
-    negative value of a quantity that cannot be negative, a sigma column without
-    its measured column or with a value <= 0, and a file mixing scenes.
+    negative value of a quantity that cannot be negative, a physically
+    impossible value (a normal COR above 1, a rebound faster than the impact),
+    an output column with no value, a sigma column without its measured column
+    or with a value <= 0, a file mixing scenes, a file that is not UTF-8 text
+    (a byte-order mark is fine), a semicolon-delimited file, and a directory.
+    Rows are named by their line number in the file.
     """
     path = os.fspath(path)
-    if not os.path.exists(path):
-        raise DataError(f"{path}: no such file")
-    with open(path, newline="", encoding="utf-8") as fh:
-        lines = fh.read().splitlines()
+    lines = _read_lines(path)
     provenance, body_start = [], 0
     for i, line in enumerate(lines):
         if line.startswith("#"):
@@ -235,7 +242,13 @@ def load_experiments(path: str | os.PathLike) -> ExperimentData:
     else:
         raise DataError(f"{path}: the file is empty (no header and no rows)")
     reader = csv.reader(lines[body_start:])
-    header = next(reader)
+    header = [h.strip() for h in next(reader)]
+    if len(header) == 1 and ";" in header[0]:
+        raise DataError(
+            f"{path}, line {body_start + 1}: the header has no commas but "
+            "semicolons; the experiment format is comma-separated (save the "
+            "file as CSV with ',' as the delimiter and '.' as the decimal point)"
+        )
     rows = [(body_start + 2 + k, r) for k, r in enumerate(reader) if any(r)]
     if not rows:
         raise DataError(f"{path}: header but no rows of data")
@@ -279,13 +292,13 @@ def load_experiments(path: str | os.PathLike) -> ExperimentData:
     for lineno, row in rows:
         if len(row) != len(header):
             raise DataError(
-                f"{path}, row {lineno}: {len(row)} fields, expected {len(header)} "
+                f"{path}, line {lineno}: {len(row)} fields, expected {len(header)} "
                 f"({', '.join(header)})"
             )
         if scene_idx is not None:
             s = row[scene_idx].strip()
             if not s:
-                raise DataError(f"{path}, row {lineno}, column 'scene': empty")
+                raise DataError(f"{path}, line {lineno}, column 'scene': empty")
             scenes.add(s)
         for j, col in columns.items():
             values[j].append(_cell(row[j], col, path, lineno))
@@ -303,13 +316,29 @@ def load_experiments(path: str | os.PathLike) -> ExperimentData:
             inputs[col.quantity] = arr
         else:
             outputs[col.quantity] = arr
+    line_numbers = np.asarray([lineno for lineno, _ in rows])
+    for q, a in outputs.items():
+        if not np.isfinite(a).any():
+            raise DataError(
+                f"{path}, column {seen[(q, False)]!r}: no row has a value; fill "
+                "it in or remove the column"
+            )
     for q, s in sigmas.items():
         bad = np.isfinite(outputs[q]) & ~(s > 0)
         if bad.any():
             k = int(np.argmax(bad))
             raise DataError(
-                f"{path}, row {rows[k][0]}, column {seen[(q, True)]!r}: an "
+                f"{path}, line {rows[k][0]}, column {seen[(q, True)]!r}: an "
                 "uncertainty must be a number > 0 where the output is measured"
+            )
+    if "rebound_velocity" in outputs and "impact_velocity" in inputs:
+        faster = outputs["rebound_velocity"] > inputs["impact_velocity"]
+        if faster.any():
+            k = int(np.argmax(faster))
+            raise DataError(
+                f"{path}, line {rows[k][0]}: the rebound velocity exceeds the "
+                "impact velocity (a normal COR above 1, more energy out than in); "
+                "check the columns' units"
             )
     return ExperimentData(
         scene=scenes.pop() if scenes else None,
@@ -319,11 +348,35 @@ def load_experiments(path: str | os.PathLike) -> ExperimentData:
         provenance="\n".join(provenance),
         path=path,
         columns={c.header: c for c in columns.values()},
+        lines=line_numbers,
     )
 
 
+def _read_lines(path: str) -> list[str]:
+    """The file's lines, decoded as UTF-8 (a byte-order mark, as spreadsheet
+    programs write, is dropped); a clear :class:`DataError` otherwise."""
+    if os.path.isdir(path):
+        raise DataError(f"{path}: is a directory; give the path of a CSV file")
+    try:
+        with open(path, "rb") as fh:
+            raw = fh.read()
+    except FileNotFoundError:
+        raise DataError(f"{path}: no such file") from None
+    except OSError as err:
+        raise DataError(f"{path}: cannot be read ({err.strerror})") from None
+    try:
+        text = raw.decode("utf-8-sig")
+    except UnicodeDecodeError as err:
+        line = raw[: err.start].count(b"\n") + 1
+        raise DataError(
+            f"{path}, line {line}: byte 0x{raw[err.start]:02x} is not UTF-8 "
+            "text; save the file as UTF-8 (CSV UTF-8 in spreadsheet programs)"
+        ) from None
+    return text.splitlines()
+
+
 def _cell(text: str, col: Column, path: str, lineno: int) -> float:
-    where = f"{path}, row {lineno}, column {col.header!r}"
+    where = f"{path}, line {lineno}, column {col.header!r}"
     text = text.strip()
     q = QUANTITIES[col.quantity]
     if not text:
@@ -340,6 +393,11 @@ def _cell(text: str, col: Column, path: str, lineno: int) -> float:
         raise DataError(
             f"{where}: {text} is negative; {q.name} ({q.doc}) must be >= 0 "
             f"in {col.unit or _SI[q.dimension]}"
+        )
+    if not col.is_sigma and x * col.factor > q.maximum:
+        raise DataError(
+            f"{where}: {text} exceeds {q.maximum:g}, the largest physically "
+            f"possible {q.name} ({q.doc})"
         )
     return x
 

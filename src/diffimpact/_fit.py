@@ -42,8 +42,10 @@ from ._observables import (
     getter,
     predict,
     resolve_parameter,
+    row_label,
     scene_spec,
 )
+from ._result import RESULTS, result_name
 from ._transforms import make_transform
 
 _SOLVERS = ("levenberg-marquardt", "gauss-newton", "adam", "lbfgs")
@@ -55,6 +57,17 @@ _RANK_TOL = 1e-6
 # (so the errors come out huge and the correlation +-1, not infinite or NaN).
 _SV_FLOOR = 1e-9
 _STALL = 4
+# Weighted residual given to a row whose prediction failed during the
+# iterations (outside the contact model, say): large and constant, so that a
+# trial step into such a region raises the cost and is rejected, while the
+# residuals of the other rows stay exact.
+_FAILED_RESIDUAL = 1e6
+# Default bounds of parameters whose domain is not (0, inf), by field name.
+_DOMAINS = {
+    "poisson_ratio": (-1.0, 0.5),
+    "cor": (0.0, 1.0),
+    "dr_a": (0.0, 1.0),
+}
 
 
 class IdentifiabilityWarning(UserWarning):
@@ -69,7 +82,10 @@ class FitResult:
     - `covariance`, `correlation`: ``(p, p)``;
     - `quantities`: the measured outputs fitted; `measured`, `predicted`,
       `sigma`, `residuals` (weighted): ``(n_rows, n_quantities)``, NaN where a
-      row did not measure a quantity;
+      row did not measure a quantity; `sigma_measured`: per quantity, whether
+      its sigma came from the file (else it is the RMS of the measurements);
+      `lines`: the line in the data file of each row (how every message and
+      output file names a row);
     - `cost`: half the weighted sum of squares; `chi2_reduced`: ``2 cost / dof``;
     - `iterations`, `converged`, `solver`, `seconds`;
     - `singular_values`: of the Jacobian w.r.t. the unconstrained parameters;
@@ -100,6 +116,8 @@ class FitResult:
     singular_values: np.ndarray
     warnings: tuple[str, ...]
     experiment: Experiment
+    sigma_measured: tuple[bool, ...] = ()
+    lines: np.ndarray | None = None
 
     @property
     def identifiable(self) -> bool:
@@ -127,7 +145,12 @@ class FitResult:
         return "\n".join(lines)
 
     def to_dict(self) -> dict:
-        """A JSON-ready summary (parameters, covariance, fit statistics)."""
+        """A JSON-ready summary (parameters, covariance, fit statistics);
+        non-finite numbers (an infinite standard error) become None (JSON has
+        no Infinity)."""
+        return _json_ready(self._dict())
+
+    def _dict(self) -> dict:
         return {
             "parameters": {
                 n: {"value": float(v), "std_error": float(s), "start": float(x0)}
@@ -149,6 +172,16 @@ class FitResult:
             "singular_values": self.singular_values.tolist(),
             "warnings": list(self.warnings),
         }
+
+
+def _json_ready(x):
+    if isinstance(x, dict):
+        return {k: _json_ready(v) for k, v in x.items()}
+    if isinstance(x, list | tuple):
+        return [_json_ready(v) for v in x]
+    if isinstance(x, float) and not math.isfinite(x):
+        return None
+    return x
 
 
 class _Problem(eqx.Module):
@@ -174,18 +207,20 @@ class _Problem(eqx.Module):
         )
 
     def predictions(self, u):
+        """``(predicted (n, k), result codes (n,))``; a failed row is NaN."""
         e = self.with_parameters(u)
 
         def one(row):
-            out = predict(e, row)
-            return jnp.stack([out[q] for q in self.quantities])
+            out = predict(e, row, throw=False)
+            return jnp.stack([out[q] for q in self.quantities]), out["result"]._value
 
         return jax.vmap(one)(self.inputs)
 
     def residuals(self, u):
-        pred = self.predictions(u)
+        pred, codes = self.predictions(u)
+        ok = (codes == RESULTS.successful._value)[:, None]
         r = jnp.where(self.mask, (pred - self.measured) / self.sigma, 0.0)
-        return r.ravel()
+        return jnp.where(ok, r, jnp.where(self.mask, _FAILED_RESIDUAL, 0.0)).ravel()
 
 
 def _residual_fn(u, problem: _Problem):
@@ -227,6 +262,13 @@ def fit(
 
     **Returns:** a :class:`FitResult`.
     """
+    if not jax.config.jax_enable_x64:
+        raise RuntimeError(
+            "diffimpact.fit needs float64: its least-squares steps and "
+            "covariances rely on derivatives accurate to ~1e-9, which float32 "
+            "cannot give. Call jax.config.update('jax_enable_x64', True) at the "
+            "start of the program, before creating arrays"
+        )
     if solver not in _SOLVERS:
         raise ValueError(f"`solver` must be one of {_SOLVERS}, got {solver!r}")
     if isinstance(free, str):
@@ -253,7 +295,7 @@ def fit(
             f"{data.path} holds {data.scene!r} impacts, but the experiment's scene "
             f"is {spec.name!r}"
         )
-    check_rows(experiment, data.inputs, data.path)
+    check_rows(experiment, data.inputs, data.path, data.lines)
 
     start, bounds = dict(start or {}), dict(bounds or {})
     for d, what in ((start, "start"), (bounds, "bounds")):
@@ -266,7 +308,8 @@ def fit(
         for n, p in zip(free, paths, strict=True)
     ]
     transforms = tuple(
-        make_transform(n, x, bounds.get(n)) for n, x in zip(free, x0, strict=True)
+        make_transform(n, x, bounds.get(n, _DOMAINS.get(p.rpartition(".")[2])))
+        for n, x, p in zip(free, x0, paths, strict=True)
     )
 
     quantities, measured, sigma, mask, absolute = _targets(data, outputs, experiment)
@@ -287,6 +330,9 @@ def fit(
     # diffrax differentiates a solve in forward mode only with ForwardMode.
     # The optax minimisers take gradients of a scalar loss: reverse mode.
     forward = _with_adjoint(problem, diffrax.ForwardMode())
+    # Every row must be predictable at the start: name the ones that are not
+    # before minutes of iterations.
+    _check_predictions(forward, u0, data, "at the start values")
     t0 = time.perf_counter()
     bar = _Progress(max_steps, solver) if progress else None
     if solver in ("levenberg-marquardt", "gauss-newton"):
@@ -299,6 +345,7 @@ def fit(
         )
     if bar:
         bar.close()
+    _check_predictions(forward, u, data, "at the fitted values")
     return _result(
         forward,
         data,
@@ -309,6 +356,29 @@ def fit(
         time.perf_counter() - t0,
         np.asarray(x0),
         absolute,
+    )
+
+
+def _check_predictions(problem: _Problem, u, data, when: str) -> None:
+    _, codes = eqx.filter_jit(problem.predictions)(u)
+    codes = np.asarray(codes)
+    failed = np.nonzero(codes != int(RESULTS.successful._value))[0]
+    if failed.size == 0:
+        return
+    values = ", ".join(
+        f"{n} = {float(x):.6g}"
+        for n, x in zip(problem.names, problem.parameters(u), strict=True)
+    )
+    listed = "; ".join(
+        f"{row_label(data.lines, i)}: {result_name(codes[i]).replace('_', ' ')}"
+        for i in failed[:10]
+    )
+    more = f" (and {failed.size - 10} more)" if failed.size > 10 else ""
+    first = RESULTS[getattr(RESULTS, result_name(codes[failed[0]]))]
+    raise ValueError(
+        f"{data.path}: the prediction failed {when} ({values}) for "
+        f"{failed.size} of {codes.size} rows: {listed}{more}. First reason: "
+        f"{first.removeprefix('diffimpact: ')}"
     )
 
 
@@ -441,7 +511,7 @@ def _minimise(problem, u0, name, max_steps, rtol, atol, learning_rate, bar):
 def _result(problem, data, u, steps, converged, solver, seconds, x0, absolute):
     names = problem.names
     x = np.array([float(v) for v in problem.parameters(u)])
-    pred = np.asarray(eqx.filter_jit(problem.predictions)(u))
+    pred = np.asarray(eqx.filter_jit(problem.predictions)(u)[0])
     jac_u = np.asarray(eqx.filter_jit(lambda v: jax.jacfwd(problem.residuals)(v))(u))
     mask = np.asarray(problem.mask)
     measured = np.where(mask, np.asarray(problem.measured), np.nan)
@@ -547,6 +617,8 @@ def _result(problem, data, u, steps, converged, solver, seconds, x0, absolute):
         singular_values=s,
         warnings=tuple(notes),
         experiment=problem.with_parameters(u),
+        sigma_measured=tuple(q in data.sigmas for q in problem.quantities),
+        lines=data.lines,
     )
 
 

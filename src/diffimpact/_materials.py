@@ -6,10 +6,10 @@ import equinox as eqx
 import jax.numpy as jnp
 from jaxtyping import Array
 
-from ._checks import as_float, require, require_positive
+from ._checks import AbstractValidated, as_float, check, positive
 
 
-class Material(eqx.Module):
+class Material(AbstractValidated):
     """An isotropic, elastic-perfectly-plastic material (SI units).
 
     **Arguments:**
@@ -29,19 +29,22 @@ class Material(eqx.Module):
     yield_strength: Array = eqx.field(converter=as_float, default=jnp.inf)
     density: Array = eqx.field(converter=as_float, default=7850.0)
 
-    def __check_init__(self):
-        require_positive(self.youngs_modulus, "Material.youngs_modulus", "Pa")
-        require(
-            self.poisson_ratio,
-            (self.poisson_ratio > -1.0) & (self.poisson_ratio < 0.5),
-            "`Material.poisson_ratio` must lie in the open interval (-1, 0.5)",
-        )
-        require(
-            self.yield_strength,
-            self.yield_strength > 0,
-            "`Material.yield_strength` must be > 0 in Pa (inf for no yield)",
-        )
-        require_positive(self.density, "Material.density", "kg/m^3")
+    def _checks(self):
+        nu, s_y = self.poisson_ratio, self.yield_strength
+        return [
+            positive(self.youngs_modulus, "Material.youngs_modulus", "Pa"),
+            check(
+                nu,
+                (nu > -1.0) & (nu < 0.5),
+                "`Material.poisson_ratio` must lie in the open interval (-1, 0.5)",
+            ),
+            check(
+                s_y,
+                s_y > 0,
+                "`Material.yield_strength` must be > 0 in Pa (inf for no yield)",
+            ),
+            positive(self.density, "Material.density", "kg/m^3"),
+        ]
 
 
 class ContactProperties(eqx.Module):

@@ -61,12 +61,13 @@ import jax.numpy as jnp
 import optimistix as optx
 from jaxtyping import Array
 
-from ._checks import as_float, require, require_finite
+from ._checks import as_float, guard, is_traced, require, require_finite
 from ._laws._base import AbstractNormalLaw
 from ._laws._dissipative import _AbstractDampedHertz
 from ._laws._friction import Friction
+from ._result import RESULTS, finish, raise_if_failed
 from ._smooth import safe_pow, safe_sqrt, step
-from ._solver import stored_steps_adjoint
+from ._solver import check_settings, stored_steps_adjoint
 from .scenes._mechanisms import AbstractMechanism
 
 # Bound on the scaled states the vector field reads (see `_Span.field`).
@@ -120,28 +121,13 @@ class SpanSettings(eqx.Module):
     )
 
     def __check_init__(self):
-        # Static numbers: plain ValueErrors at construction, before any solve.
-        def positive(name, value, allow_none=False):
-            if value is None and allow_none:
-                return
-            ok = isinstance(value, (int, float)) and math.isfinite(value)
-            if not (ok and value > 0):
-                raise ValueError(
-                    f"`SpanSettings.{name}` must be a finite number > 0, got {value!r}"
-                )
-
-        for name in ("rtol", "atol", "velocity_width", "phase_width", "slip_width"):
-            positive(name, getattr(self, name))
-        for name in ("dtmax", "onset_step"):
-            positive(name, getattr(self, name), allow_none=True)
-        for name in ("max_steps", "max_impacts"):
+        check_settings(self)
+        for name in ("pcoeff", "icoeff"):
             value = getattr(self, name)
-            if not (isinstance(value, int) and value >= 1):
+            if not (isinstance(value, int | float) and math.isfinite(value)):
                 raise ValueError(
-                    f"`SpanSettings.{name}` must be an integer >= 1, got {value!r}"
+                    f"`SpanSettings.{name}` must be a finite number, got {value!r}"
                 )
-        if not isinstance(self.solver, diffrax.AbstractSolver):
-            raise TypeError("`SpanSettings.solver` must be a diffrax solver")
 
 
 class SpanHistory(eqx.Module):
@@ -225,6 +211,9 @@ class SpanResult(eqx.Module):
       `energy_scale`: ``max(|W_a|, W_n + W_f, |T - T0|, |V - V0|)`` over the
       steps, so ``energy_error / energy_scale`` is the relative closure.
     - `num_steps`, `num_accepted_steps`, `num_rejected_steps`.
+    - `result`: a :class:`RESULTS` code (``max_steps_reached``,
+      ``solver_failed``); with ``simulate_span(..., throw=False)`` a failed
+      span has NaN floating-point outputs and says here why.
     """
 
     history: SpanHistory | None
@@ -244,6 +233,7 @@ class SpanResult(eqx.Module):
     num_steps: Array
     num_accepted_steps: Array
     num_rejected_steps: Array
+    result: RESULTS = eqx.field(default_factory=lambda: RESULTS.successful)
 
 
 # --------------------------------------------------------------------------
@@ -728,7 +718,8 @@ def _setup(scene, law, friction, settings):
 
 
 @eqx.filter_jit
-def _simulate_span(scene, law, t_span, friction, settings, n_save):
+def _simulate_span(scene, law, t_span, friction, settings, n_save, throw):
+    scene, law, friction = guard((scene, law, friction))
     p, y0 = _setup(scene, law, friction, settings)
     q0, q_dot0 = scene.initial_state()
     n, nc = p.n, p.nc
@@ -760,6 +751,15 @@ def _simulate_span(scene, law, t_span, friction, settings, n_save):
         saveat=diffrax.SaveAt(subs=subs),
         max_steps=settings.max_steps,
         adjoint=stored_steps_adjoint(settings.adjoint, settings.max_steps),
+        throw=False,
+    )
+    r = sol.result
+    result = RESULTS.where(
+        r == diffrax.RESULTS.max_steps_reached,
+        RESULTS.max_steps_reached,
+        RESULTS.where(
+            r == diffrax.RESULTS.successful, RESULTS.successful, RESULTS.solver_failed
+        ),
     )
     e0 = p.kinetic(q0, q_dot0) + scene.potential(q0)
 
@@ -846,7 +846,7 @@ def _simulate_span(scene, law, t_span, friction, settings, n_save):
         )
     )
     stats = sol.stats
-    return SpanResult(
+    out = SpanResult(
         history=history,
         steps=steps,
         impacts=impacts,
@@ -864,7 +864,9 @@ def _simulate_span(scene, law, t_span, friction, settings, n_save):
         num_steps=stats["num_steps"],
         num_accepted_steps=stats["num_accepted_steps"],
         num_rejected_steps=stats["num_rejected_steps"],
+        result=result,
     )
+    return finish(out, result, throw)
 
 
 def simulate_span(
@@ -875,6 +877,7 @@ def simulate_span(
     friction=None,
     settings: SpanSettings = SpanSettings(),
     n_save: int = 0,
+    throw: bool = True,
 ) -> SpanResult:
     """Simulate ``scene`` from ``t_span[0]`` to ``t_span[1]`` [s] through every
     impact on the way, in one adaptive diffrax solve.
@@ -890,6 +893,9 @@ def simulate_span(
     - `settings`: a :class:`SpanSettings`.
     - `n_save`: number of equally spaced samples in ``result.history``
       (0: none; ``result.steps`` always has every accepted step).
+    - `throw`: as in :func:`diffimpact.simulate`: True raises when the solve
+      fails (out of steps, solver failure); False returns NaN outputs with the
+      reason in ``result.result``.
 
     **Returns:** a :class:`SpanResult`.  ``jax.jit``, ``jax.grad`` and
     ``jax.vmap`` compose with it; every number of the scene, law and friction
@@ -932,4 +938,12 @@ def simulate_span(
         "`t_span[1]` must be finite and greater than `t_span[0]` (seconds)",
     )
     t_span = (t0, t1)
-    return _simulate_span(scene, law, t_span, friction, settings, n_save)
+    traced = is_traced((scene, law, friction, t_span))
+    if not traced:  # bad input: ValueError naming the field, before any solve
+        guard((scene, law, friction))
+    res = _simulate_span(
+        scene, law, t_span, friction, settings, n_save, throw and traced
+    )
+    if throw and not traced:
+        raise_if_failed(res.result)
+    return res

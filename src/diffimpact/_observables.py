@@ -20,6 +20,7 @@ import equinox as eqx
 import jax.numpy as jnp
 
 from ._checks import as_float
+from ._data import DataError, parse_column
 from ._laws._base import AbstractNormalLaw
 from ._laws._friction import Friction
 from ._laws._jackson_green import JacksonGreen
@@ -276,13 +277,47 @@ def getter(path: str):
     return lambda obj: get_path(obj, path)
 
 
-def with_inputs(experiment: Experiment, inputs: dict) -> Experiment:
-    """Replace the scene fields that one row's ``inputs`` (SI) give.
+def si_inputs(experiment: Experiment, inputs: dict) -> dict:
+    """``inputs`` keyed by quantity in SI units.
 
-    ``eqx.tree_at`` does not re-run the scene's checks, so callers validate the
-    concrete rows first (:func:`check_rows`)."""
+    A key is a quantity in SI (``"angle"`` in rad, ``"drop_height"`` in m) or a
+    column name with its unit as in the CSV format (``"angle_deg"``,
+    ``"drop_height_mm"``), converted to SI.  A name the scene does not take is
+    a ``ValueError`` listing the ones it does (never silently ignored)."""
     spec = scene_spec(experiment.scene)
-    names = [q for q in inputs if q in spec.inputs]
+    out = {}
+    for key, value in inputs.items():
+        if key in spec.inputs:
+            quantity, factor = key, 1.0
+        else:
+            try:
+                col = parse_column(key)
+            except DataError:
+                col = None
+            if col is None or col.is_sigma or col.quantity not in spec.inputs:
+                names = sorted(spec.inputs)
+                raise ValueError(
+                    f"unknown input {key!r} for scene {spec.name!r}: give one of "
+                    f"{names} in SI units, or a column name with its unit as in "
+                    "the CSV format (e.g. 'angle_deg', 'drop_height_mm')"
+                )
+            quantity, factor = col.quantity, col.factor
+        if quantity in out:
+            raise ValueError(f"input {quantity!r} is given twice (as {key!r})")
+        out[quantity] = value if factor == 1.0 else value * factor
+    return out
+
+
+def with_inputs(experiment: Experiment, inputs: dict) -> Experiment:
+    """Replace the scene fields that one row's ``inputs`` give (keys as in
+    :func:`si_inputs`).
+
+    ``eqx.tree_at`` does not re-run the scene's checks; :func:`simulate` runs
+    them on the scene it is given (and :func:`check_rows` validates whole
+    files before any solve)."""
+    inputs = si_inputs(experiment, inputs)
+    spec = scene_spec(experiment.scene)
+    names = list(inputs)
     if not names:
         return experiment
     where = [getter("scene." + spec.inputs[q]) for q in names]
@@ -293,7 +328,9 @@ def with_inputs(experiment: Experiment, inputs: dict) -> Experiment:
     )
 
 
-def check_rows(experiment: Experiment, inputs: dict, path: str = "data") -> None:
+def check_rows(
+    experiment: Experiment, inputs: dict, path: str = "data", lines=None
+) -> None:
     """Validate every row's scene eagerly (before any solve) with the scene's own
     checks; raise a ValueError naming the row and the scene's message."""
     spec = scene_spec(experiment.scene)
@@ -315,17 +352,43 @@ def check_rows(experiment: Experiment, inputs: dict, path: str = "data") -> None
         try:
             dataclasses.replace(experiment.scene, **fields)
         except ValueError as err:
-            raise ValueError(f"{path}, data row {i + 1}: {err}") from None
+            raise ValueError(f"{path}, {row_label(lines, i)}: {err}") from None
 
 
-def predict(experiment: Experiment, inputs: dict | None = None) -> dict:
+def row_label(lines, i: int) -> str:
+    """How every message, file and plot names row ``i`` of a data file: its
+    line number in the file (``lines[i]``), or ``row i+1`` without a file."""
+    if lines is None:
+        return f"row {i + 1}"
+    return f"line {int(lines[i])}"
+
+
+def predict(
+    experiment: Experiment, inputs: dict | None = None, *, throw: bool = True
+) -> dict:
     """Simulate one impact and return every measurable quantity it gives (SI).
 
-    Keys follow :data:`diffimpact._data.QUANTITIES`; ``cor_tangential`` is the
-    centre-of-mass tangential velocity after over before (data.md A).
+    **Arguments:** `experiment`; `inputs`: the row's inputs, by quantity in SI
+    (``{"drop_height": 0.3, "angle": 0.52}``) or by column name with its unit
+    (``{"drop_height_m": 0.3, "angle_deg": 30}``); an unknown name is an error
+    listing the valid ones, and a value outside the scene's range (an angle
+    in degrees given as radians, say) is refused by the scene's checks.
+    `throw`: as in :func:`simulate`; with False the dict also holds
+    ``"result"``, the :class:`RESULTS` code, and failed outputs are NaN.
+
+    Keys follow the experiment CSV quantities (``contact_time``,
+    ``cor_normal``, ...); ``cor_tangential`` is the centre-of-mass tangential
+    velocity after over before.
     """
     e = with_inputs(experiment, inputs or {})
-    r = simulate(e.scene, e.law, e.method, friction=e.friction, settings=e.settings)
+    r = simulate(
+        e.scene,
+        e.law,
+        e.method,
+        friction=e.friction,
+        settings=e.settings,
+        throw=throw,
+    )
     out = {
         "contact_time": r.contact_time,
         "rebound_velocity": r.rebound_velocity,
@@ -343,4 +406,6 @@ def predict(experiment: Experiment, inputs: dict | None = None) -> dict:
         out["cor_tangential"] = out["tangential_velocity"] / spec.tangential_before(
             e.scene
         )
+    if not throw:
+        out["result"] = r.result
     return out

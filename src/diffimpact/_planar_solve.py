@@ -30,15 +30,15 @@ import jax
 import jax.numpy as jnp
 
 from ._laws._friction import _HOLD_CORNER, _SPRING_CORNER, _ratio, _saturate
-from ._result import ImpactResult
+from ._result import ImpactResult, first_failure
 from ._simulate import (
-    _bind,
-    _check_event,
+    _event_time,
     _peak_rate,
     _scales,
     _smooth_force,
     _solve,
     result_fields,
+    within_model,
 )
 from ._smooth import safe_sqrt, step
 from .scenes._base import NormalProblem
@@ -222,7 +222,8 @@ def planar_setup(scene, law, friction, settings):
         velocity=v0,
         gravity=jnp.zeros_like(v0),
     )
-    bound = _bind(law, problem)
+    # No stand-in here: the initial state is the scene's own.
+    _, bound, inside = within_model(law, problem, stand_in=False)
     sc = _scales(problem, bound)
     scale_q = sc.length / jnp.maximum(jnp.maximum(jnp.abs(j_n0), jnp.abs(j_t0)), 1e-12)
     t_unit = sc.time
@@ -283,19 +284,21 @@ def planar_setup(scene, law, friction, settings):
         weights[hist + 2] = _PEAK_ERROR_WEIGHT
     if has_friction:
         weights[i_slip] = 0.0
-    return p, y0, weights
+    return p, y0, weights, inside
 
 
 def solve_planar(scene, law, friction, settings):
-    p, y0, weights = planar_setup(scene, law, friction, settings)
+    p, y0, weights, inside = planar_setup(scene, law, friction, settings)
     n, sc, bound = p.n, p.sc, p.bound
     hist = 2 * n  # index of x_m
     i_slip = hist + 2 + (1 if bound.rate_dependent else 0)  # s_min, if any
     t_unit, impulse_unit, work_unit = sc.time, p.impulse_unit, p.work_unit
     v0, v_t0, slip_sign = p.v0, p.v_t0, p.slip_sign
     has_friction = friction is not None
-    sol = _solve(_planar_field, y0, p, settings, _separation, False, weights=weights)
-    tau_end = _check_event(sol, "separation", settings)
+    sol, solved = _solve(
+        _planar_field, y0, p, settings, _separation, False, weights=weights
+    )
+    tau_end, separated = _event_time(sol)
     y = sol.ys[-1]
     q, q_dot, _, j_n, j_t, v_n, v_t, _, _, _ = p.forces(y)
     acc = y[-6:]
@@ -336,7 +339,9 @@ def solve_planar(scene, law, friction, settings):
         permanent_deformation=bound.residual_deflection(d_m),
         num_steps=sol.stats["num_steps"],
     )
-    return ImpactResult(**fields, extras=extras)
+    return ImpactResult(
+        **fields, extras=extras, result=first_failure(inside, solved, separated)
+    )
 
 
 def _slip_extras(min_ratio, final_ratio, v_t0, friction, settings):

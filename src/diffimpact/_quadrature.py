@@ -30,7 +30,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from ._checks import require
+from ._result import RESULTS
 from ._root import newton_root
 
 # Chebyshev samples of the plastic force for its cumulative work from d to
@@ -202,12 +202,10 @@ def solve_quadrature(problem, bound, settings):
     p = bound.unloading_exponent()
     elastic_energy = f_m * stroke / (p + 1.0)
     rebound_sq = 2.0 * (elastic_energy - m * g * stroke) / m
-    rebound_sq = require(
-        rebound_sq,
-        rebound_sq > 0,
-        "diffimpact: the bodies never separate (gravity exceeds the stored "
-        "elastic energy); nothing rebounds",
-    )
+    # Gravity may hold back more than the stored elastic energy: then the
+    # bodies never separate (the result code says so; the numbers are NaN).
+    separates = rebound_sq > 0
+    rebound_sq = jnp.where(separates, rebound_sq, 1.0)
     v_out = jnp.sqrt(rebound_sq)
 
     def drop_un(s):
@@ -223,4 +221,5 @@ def solve_quadrature(problem, bound, settings):
         rebound_velocity=v_out,
         max_deflection=d_m,
         num_steps=jnp.zeros((), jnp.int32),
+        result=RESULTS.where(separates, RESULTS.successful, RESULTS.never_separates),
     )

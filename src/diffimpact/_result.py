@@ -1,9 +1,137 @@
-"""The result of one impact."""
+"""The result of one impact, and the codes that say whether it succeeded."""
 
 from __future__ import annotations
 
 import equinox as eqx
+import jax
+import jax.numpy as jnp
+import numpy as np
 from jaxtyping import Array
+
+from ._laws._base import MAX_DEPTH
+
+
+class RESULTS(eqx.Enumeration):
+    """Outcome codes of a solve (the diffrax / optimistix habit).
+
+    Every result carries one in its ``result`` field.  With ``throw=True``
+    (the default) a failure raises: eagerly as the matching
+    :class:`SimulationError` subclass, under ``jax.jit``/``jax.vmap`` as an
+    ``equinox`` runtime error with the same message.  With ``throw=False``
+    nothing raises: a failed element's floating-point outputs are NaN and its
+    ``result`` says why, and the other elements of a batch are unaffected.
+    Compare with ``result == diffimpact.RESULTS.successful``; under ``vmap``
+    ``result._value`` is the integer code array (``RESULTS[...]`` of an item
+    gives its message).
+    """
+
+    successful = ""
+    outside_model = (
+        "diffimpact: the impact is outside the contact model: its Hertz "
+        f"interference estimate exceeds {MAX_DEPTH} x the effective radius (the "
+        "laws assume a contact small against the radius); lower the speed or "
+        "mass, or raise the modulus or radius"
+    )
+    never_separates = (
+        "diffimpact: the bodies did not separate within SolverSettings.max_time "
+        "(in impact time units d_ref / v0); they may never separate (gravity "
+        "holds them together, or friction jams a contact that cannot move "
+        "without slipping: a RotatingLink whose tip sticks with mu tan(angle) > "
+        "1 is wedged). Raise max_time if the impact is just slow"
+    )
+    max_steps_reached = (
+        "diffimpact: the step budget (SolverSettings.max_steps or "
+        "SpanSettings.max_steps) ran out before the solve ended; raise it, e.g. "
+        "4x (stiff cases: very soft or very plastic contact, a tangentially "
+        "compliant contact)"
+    )
+    solver_failed = (
+        "diffimpact: the ODE solve failed (step size underflow or a non-finite "
+        "state); check the inputs, or loosen the settings' rtol/atol"
+    )
+    precision_lost = (
+        "diffimpact: float32 lost the quadrature's precision (a non-finite "
+        "output); enable float64 with jax.config.update('jax_enable_x64', True) "
+        "at the start of the program"
+    )
+
+
+class SimulationError(RuntimeError):
+    """A solve that did not produce a valid impact (eager calls with
+    ``throw=True``).  ``result`` is the :class:`RESULTS` item."""
+
+    def __init__(self, message: str, result=None):
+        super().__init__(message)
+        self.result = result
+
+
+class OutsideModelError(SimulationError):
+    """The impact lies outside the contact law's validity (a contact as deep
+    as a good part of the radius)."""
+
+
+class NeverSeparatesError(SimulationError):
+    """The bodies did not separate within the time budget."""
+
+
+class StepBudgetError(SimulationError):
+    """The solver's step budget ran out."""
+
+
+class SolverError(SimulationError):
+    """The ODE solver failed, or float32 lost the precision the solve needs."""
+
+
+_ERRORS = {
+    "outside_model": OutsideModelError,
+    "never_separates": NeverSeparatesError,
+    "max_steps_reached": StepBudgetError,
+    "solver_failed": SolverError,
+    "precision_lost": SolverError,
+}
+
+
+def result_name(code: int) -> str:
+    """The name (``"outside_model"``, ...) of an integer result code."""
+    return _NAMES[int(code)]
+
+
+_NAMES = {int(getattr(RESULTS, n)._value): n for n in ("successful", *_ERRORS)}
+
+
+def first_failure(*codes):
+    """The first code (in pipeline order) that is not ``successful``."""
+    out = RESULTS.successful
+    for code in reversed(codes):
+        out = RESULTS.where(code == RESULTS.successful, out, code)
+    return out
+
+
+def finish(tree, result, throw: bool):
+    """NaN the floating-point leaves of ``tree`` where ``result`` failed; with
+    ``throw``, raise (traced: ``equinox`` runtime error) instead."""
+    failed = result != RESULTS.successful
+    if throw:
+        tree = result.error_if(tree, failed)
+
+    def nan(x):
+        if eqx.is_inexact_array(x):
+            return jnp.where(failed, jnp.nan, x)
+        return x
+
+    return jax.tree.map(nan, tree)
+
+
+def raise_if_failed(result, extra: str = "") -> None:
+    """Eager ``throw=True``: raise the :class:`SimulationError` subclass of the
+    first failed element of a concrete ``result``."""
+    codes = np.atleast_1d(np.asarray(result._value))
+    bad = np.nonzero(codes != int(RESULTS.successful._value))[0]
+    if bad.size == 0:
+        return
+    name = result_name(codes[bad[0]])
+    where = f" (element {bad[0]} of {codes.size})" if codes.size > 1 else ""
+    raise _ERRORS[name](RESULTS[getattr(RESULTS, name)] + extra + where, result)
 
 
 class History(eqx.Module):
@@ -28,6 +156,8 @@ class ImpactResult(eqx.Module):
     - `impulse_compression`, `impulse_restitution` [N s]; `work_compression`,
       `work_restitution` [J] (work of the contact force, both positive).
     - `num_steps`: accepted + rejected solver steps (0 for quadrature).
+    - `result`: a :class:`RESULTS` code; with ``simulate(..., throw=False)`` a
+      failed impact has NaN outputs and says here why.
     - `history`: a :class:`History` when ``n_history > 0``, else None.
     - `extras`: scene-specific outputs (e.g. ``velocity1_after`` for Collinear).
     """
@@ -49,3 +179,4 @@ class ImpactResult(eqx.Module):
     num_steps: Array
     history: History | None = None
     extras: dict = eqx.field(default_factory=dict)
+    result: RESULTS = eqx.field(default_factory=lambda: RESULTS.successful)

@@ -21,10 +21,17 @@ import jax
 import jax.numpy as jnp
 import optimistix as optx
 
-from ._checks import require
+from ._checks import guard, is_traced
 from ._laws._base import MAX_DEPTH, AbstractBoundLaw, AbstractNormalLaw
 from ._laws._dissipative import _AbstractDampedHertz
-from ._result import History, ImpactResult
+from ._result import (
+    RESULTS,
+    History,
+    ImpactResult,
+    finish,
+    first_failure,
+    raise_if_failed,
+)
 from ._root import newton_root
 from ._smooth import safe_sqrt, step
 from ._solver import SolverSettings, stored_steps_adjoint
@@ -49,7 +56,7 @@ class _Scales(eqx.Module):
 def _scales(problem: NormalProblem, bound: AbstractBoundLaw) -> _Scales:
     k, n = bound.scale()
     m, v0 = problem.mass, problem.velocity
-    d_ref = ((n + 1.0) * m * v0**2 / (2.0 * k)) ** (1.0 / (n + 1.0))
+    d_ref = reference_length(m, v0, k, n)
     return _Scales(
         length=d_ref,
         speed=v0,
@@ -196,45 +203,27 @@ def _solve(field, y0, args, settings, conds, directions, dense=False, weights=No
         adjoint=adjoint,
         throw=False,
     )
-    # Our own errors (diffrax's would not say which setting to change),
-    # threaded through both the states and the times, so that the later "no
-    # separation within max_time" check cannot fire first and mislead.
+    # diffrax's codes in our terms (its messages would not say which setting
+    # to change); the caller decides whether to raise (`throw`).
     r = sol.result
-    checks = [
-        (
-            r != diffrax.RESULTS.max_steps_reached,
-            f"diffimpact: the step budget SolverSettings.max_steps = "
-            f"{settings.max_steps} ran out before the bodies separated; raise it, "
-            f"e.g. SolverSettings(max_steps={4 * settings.max_steps}) (stiff cases: "
-            "very soft or very plastic contact, a tangentially compliant contact)",
-        ),
-        (
-            (r == diffrax.RESULTS.successful) | (r == diffrax.RESULTS.event_occurred),
-            "diffimpact: the ODE solve failed (step size underflow or a non-finite "
-            "state); check the inputs, or loosen SolverSettings.rtol/atol",
-        ),
-    ]
-    ys, ts = sol.ys, sol.ts
-    for ok, message in checks:
-        ys, ts = require(ys, ok, message), require(ts, ok, message)
-    return eqx.tree_at(lambda s: (s.ys, s.ts), sol, (ys, ts))
+    ended = (r == diffrax.RESULTS.successful) | (r == diffrax.RESULTS.event_occurred)
+    result = RESULTS.where(
+        r == diffrax.RESULTS.max_steps_reached,
+        RESULTS.max_steps_reached,
+        RESULTS.where(ended, RESULTS.successful, RESULTS.solver_failed),
+    )
+    return sol, result
 
 
-def _check_event(sol, what: str, settings: SolverSettings):
+def _event_time(sol):
+    """End time of a solve, and ``never_separates`` if its event did not fire
+    within ``max_time`` (the bodies may never separate, or the impact is just
+    slow: the message says both)."""
     happened = jnp.any(
         jnp.stack([jnp.asarray(m) for m in jax.tree.leaves(sol.event_mask)])
     )
-    t = require(
-        sol.ts[-1],
-        happened,
-        f"diffimpact: {what} did not happen within `SolverSettings.max_time` = "
-        f"{settings.max_time} impact time units (d_ref / v0); the bodies may "
-        "never separate (e.g. gravity holds them together, or friction jams a "
-        "contact that cannot move without slipping: a RotatingLink whose tip "
-        "sticks with mu tan(angle) > 1 is wedged). Raise `max_time` if the "
-        "impact is just slow.",
-    )
-    return t
+    result = RESULTS.where(happened, RESULTS.successful, RESULTS.never_separates)
+    return sol.ts[-1], result
 
 
 def _y0(bound, dtype, smooth: bool):
@@ -279,7 +268,7 @@ def _solve_smooth(problem, bound, settings, n_history):
         )
         return y[0] - x_r
 
-    sol = _solve(
+    sol, solved = _solve(
         _smooth_field,
         y0,
         (bound, sc, settings),
@@ -288,12 +277,13 @@ def _solve_smooth(problem, bound, settings, n_history):
         False,
         dense=n_history > 0,
     )
-    tau_end = _check_event(sol, "separation", settings)
+    tau_end, separated = _event_time(sol)
     y = sol.ys[-1]
     out = dict(
         contact_time=tau_end * sc.time,
         rebound_velocity=-y[1] * sc.speed,
         num_steps=sol.stats["num_steps"],
+        result=first_failure(solved, separated),
     )
     if _is_conservative(bound):
         # Time reversal: restitution retraces compression (elastic law).
@@ -350,8 +340,11 @@ def _solve_events(problem, bound, settings):
         conds, dirs = (switch, stop), (False, False)
     else:
         conds, dirs = (stop,), (False,)
-    sol_a = _solve(_phase_field, y0, (bound, sc, 0, none, none), settings, conds, dirs)
-    t_a = _check_event(sol_a, "maximum compression", settings)
+    sol_a, solved_a = _solve(
+        _phase_field, y0, (bound, sc, 0, none, none), settings, conds, dirs
+    )
+    t_a, stopped_a = _event_time(sol_a)
+    codes = [solved_a, stopped_a]
     y_a = sol_a.ys[-1]
     steps = sol_a.stats["num_steps"]
     if two_phase:
@@ -365,10 +358,16 @@ def _solve_events(problem, bound, settings):
             y0.at[0].set(1.01 * bound.switch_deflection() / sc.length).at[1].set(0.1)
         )
         y0_b = jnp.where(switched, y_a, dummy)
-        sol_b = _solve(
+        sol_b, solved_b = _solve(
             _phase_field, y0_b, (bound, sc, 1, none, none), settings, stop, False
         )
-        t_b = _check_event(sol_b, "maximum compression", settings)
+        t_b, stopped_b = _event_time(sol_b)
+        # The dummy solve's codes do not count.
+        ok = RESULTS.successful
+        codes += [
+            RESULTS.where(switched, solved_b, ok),
+            RESULTS.where(switched, stopped_b, ok),
+        ]
         y_load = jnp.where(switched, sol_b.ys[-1], y_a)
         t_load = jnp.where(switched, t_a + t_b, t_a)
         steps = steps + jnp.where(switched, sol_b.stats["num_steps"], 0)
@@ -384,10 +383,10 @@ def _solve_events(problem, bound, settings):
         return y[0] - x_r
 
     y0_c = y_load.at[1].set(0.0)
-    sol_c = _solve(
+    sol_c, solved_c = _solve(
         _phase_field, y0_c, (bound, sc, "unload", d_m, f_m), settings, separation, False
     )
-    t_c = _check_event(sol_c, "separation", settings)
+    t_c, separated = _event_time(sol_c)
     y_c = sol_c.ys[-1]
     out = dict(
         contact_time=(t_load + t_c) * sc.time,
@@ -395,6 +394,7 @@ def _solve_events(problem, bound, settings):
         rebound_velocity=-y_c[1] * sc.speed,
         max_deflection=d_m,
         num_steps=steps + sol_c.stats["num_steps"],
+        result=first_failure(*codes, solved_c, separated),
     )
     if bound.rate_dependent:
         out["max_force"] = y_c[-1] * sc.force
@@ -476,51 +476,50 @@ def _bind(law: AbstractNormalLaw, problem: NormalProblem) -> AbstractBoundLaw:
     if isinstance(law, _AbstractDampedHertz) and law.calibrated:
         from ._calibrate import damping_ratio
 
-        bound = law.bind(
+        return law.bind(
             problem.contact, problem.velocity, damping_ratio(law.cor, law.exponent)
         )
-    else:
-        bound = law.bind(problem.contact, problem.velocity)
-    return _within_model(problem, bound)
+    return law.bind(problem.contact, problem.velocity)
 
 
-def _within_model(problem, bound):
-    """Guard (through ``bound.radius``, used by every JG formula) that the impact
-    lies where the contact law holds."""
-    radius = getattr(bound, "radius", None)
-    if radius is None:
-        return bound
+def reference_length(mass, velocity, stiffness, exponent):
+    """``d_ref = ((n+1) m v0^2 / (2 K))^(1/(n+1))`` [m]: the maximum interference
+    of a Hertz-like ``K d^n`` impact at ``v0`` (energy balance), the length unit
+    of every solve."""
+    n = exponent
+    return ((n + 1.0) * mass * velocity**2 / (2.0 * stiffness)) ** (1.0 / (n + 1.0))
+
+
+# Depth, as a fraction of the effective radius, of the stand-in impact solved
+# in place of one outside the model (its outputs are discarded).
+_STAND_IN_DEPTH = 0.1
+
+
+def within_model(law, problem: NormalProblem, stand_in: bool = True):
+    """``(problem, bound, result)``: ``result`` is ``outside_model`` when the
+    impact's Hertz-like interference estimate exceeds ``MAX_DEPTH`` times the
+    effective radius, for every law.  Hertz and the Jackson-Green fits behind
+    the other laws describe a contact small against the radius ((JG-6) has
+    ``cos(pi a / R)``); deeper, the formulas return numbers that mean nothing
+    (a 1 MPa sphere at 10 m/s would sink 124 radii).
+
+    With ``stand_in``, an impact outside the model is replaced by the same
+    impact at the speed that reaches ``0.1 R``, so that its (discarded) solve
+    stays short and finite in values and gradients, and a ``vmap`` batch is
+    not slowed or poisoned by one bad row."""
+    bound = _bind(law, problem)
     k, n = bound.scale()
     m, v0 = problem.mass, problem.velocity
-    d_ref = ((n + 1.0) * m * v0**2 / (2.0 * k)) ** (1.0 / (n + 1.0))
-    # JG's fits (and Hertz behind them) describe a small contact, a << R;
-    # (JG-6) uses cos(pi a / R).  An impact whose elastic estimate already
-    # pushes the sphere half a radius deep is outside the model: say so
-    # instead of returning what the formulas give there.
-    radius = require(
-        radius,
-        ~(d_ref > MAX_DEPTH * radius),
-        "diffimpact: the impact is outside the contact model: its Hertz "
-        f"interference estimate exceeds {MAX_DEPTH} x the effective radius "
-        "(the laws assume a contact small against the radius); lower the "
-        "speed or mass, or raise the modulus or radius",
-    )
-    return eqx.tree_at(lambda b: b.radius, bound, radius)
-
-
-def _validated(problem: NormalProblem) -> NormalProblem:
-    """Runtime guards for traced inputs (concrete ones were checked eagerly)."""
-    v = require(
-        problem.velocity,
-        jnp.isfinite(problem.velocity) & (problem.velocity > 0),
-        "`velocity` (normal approach speed at first contact) must be finite and > 0",
-    )
-    m = require(
-        problem.mass,
-        jnp.isfinite(problem.mass) & (problem.mass > 0),
-        "`mass` must be finite and > 0",
-    )
-    return eqx.tree_at(lambda p: (p.velocity, p.mass), problem, (v, m))
+    radius = problem.contact.effective_radius
+    outside = reference_length(m, v0, k, n) > MAX_DEPTH * radius
+    result = RESULTS.where(outside, RESULTS.outside_model, RESULTS.successful)
+    if stand_in:
+        depth = _STAND_IN_DEPTH * radius
+        v_in = jnp.sqrt(2.0 * k * depth ** (n + 1.0) / ((n + 1.0) * m))
+        v_safe = jnp.where(outside, v_in, v0)
+        problem = eqx.tree_at(lambda p: p.velocity, problem, v_safe)
+        bound = _bind(law, problem)
+    return problem, bound, result
 
 
 def _quadrature(problem, bound, settings):
@@ -536,16 +535,17 @@ def _quadrature(problem, bound, settings):
         raw = solve_quadrature(problem, bound, settings)
         if dtype == jnp.float32:
             finite = jnp.all(
-                jnp.stack([jnp.all(jnp.isfinite(x)) for x in jax.tree.leaves(raw)])
+                jnp.stack(
+                    [
+                        jnp.all(jnp.isfinite(x))
+                        for x in jax.tree.leaves(raw)
+                        if eqx.is_inexact_array(x)
+                    ]
+                )
             )
-            raw = jax.tree.map(
-                lambda x: require(
-                    x,
-                    finite,
-                    "diffimpact: float32 lost the quadrature's precision (a "
-                    "non-finite output); enable float64 (jax_enable_x64)",
-                ),
-                raw,
+            raw["result"] = first_failure(
+                raw["result"],
+                RESULTS.where(finite, RESULTS.successful, RESULTS.precision_lost),
             )
         return raw
 
@@ -561,31 +561,35 @@ def _quadrature(problem, bound, settings):
 
 
 @eqx.filter_jit
-def _simulate(scene, law, method, settings, n_history, friction=None):
+def _simulate(scene, law, method, settings, n_history, friction, throw):
     from .scenes._planar import AbstractPlanarScene
 
+    # Every check of the inputs, threaded through them: it runs first and
+    # cannot be dropped (see `_checks.guard`).
+    scene, law, friction = guard((scene, law, friction))
     if isinstance(scene, AbstractPlanarScene) and (
         friction is not None or not scene.normal_decouples
     ):
         from ._planar_solve import solve_planar
 
-        return solve_planar(scene, law, friction, settings)
+        res = solve_planar(scene, law, friction, settings)
+        return finish(res, res.result, throw)
     # 1-DOF scenes, and frictionless planar scenes whose normal DOF decouples
     # (`normal_decouples`): solved as the 1-DOF normal problem, with no
     # tangential state at all.
-    problem = _validated(scene.normal_problem())
-    bound = _bind(law, problem)
+    problem, bound, inside = within_model(law, scene.normal_problem())
     if method == "smooth":
         raw = _solve_smooth(problem, bound, settings, n_history)
     elif method == "events":
         raw = _solve_events(problem, bound, settings)
     else:
         raw = _quadrature(problem, bound, settings)
+    result = first_failure(inside, raw.pop("result"))
     out = _assemble(problem, bound, raw)
     extras = scene.extras(out["rebound_velocity"])
     if isinstance(scene, AbstractPlanarScene):
         extras = {**extras, **scene.frictionless_report(out["contact_time"])}
-    return ImpactResult(**out, extras=extras)
+    return finish(ImpactResult(**out, extras=extras, result=result), result, throw)
 
 
 def simulate(
@@ -596,6 +600,7 @@ def simulate(
     friction=None,
     settings: SolverSettings = SolverSettings(),
     n_history: int = 0,
+    throw: bool = True,
 ) -> ImpactResult:
     """Simulate one impact of ``scene`` under the normal contact ``law``.
 
@@ -611,6 +616,14 @@ def simulate(
       which solves the decoupled 1-DOF normal problem (no tangential state).
     - `n_history`: number of equally spaced samples of deflection, velocity and
       force to return in ``result.history`` (``"smooth"`` only; 0 = none).
+    - `throw`: what a failed impact does (outside the contact model, never
+      separating, out of steps).  True (default): raise, eagerly as a
+      :class:`SimulationError` subclass (:class:`OutsideModelError`, ...), under
+      ``jit``/``vmap`` as an ``equinox`` runtime error with the same message.
+      False: return it with NaN in every floating-point output and the reason
+      in ``result.result`` (a :class:`RESULTS` code), leaving the other
+      elements of a ``vmap`` batch untouched.  Invalid inputs (a negative
+      modulus, a NaN speed) always raise, naming the field.
 
     **Returns:** an :class:`ImpactResult`.
 
@@ -644,4 +657,15 @@ def simulate(
             f"{type(scene).__name__} is solved by method='smooth' only: its "
             "rotation couples to the normal motion, even without friction"
         )
-    return _simulate(scene, law, method, settings, n_history, friction)
+    if not isinstance(settings, SolverSettings):
+        raise TypeError(
+            f"`settings` must be a diffimpact.SolverSettings, got "
+            f"{type(settings).__name__}"
+        )
+    traced = is_traced((scene, law, friction))
+    if not traced:  # bad input: ValueError naming the field, before any solve
+        guard((scene, law, friction))
+    res = _simulate(scene, law, method, settings, n_history, friction, throw and traced)
+    if throw and not traced:
+        raise_if_failed(res.result)
+    return res

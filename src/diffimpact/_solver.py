@@ -5,6 +5,8 @@ from __future__ import annotations
 import diffrax
 import equinox as eqx
 
+from ._checks import static_count, static_positive
+
 
 class SolverSettings(eqx.Module):
     """Numerical settings of :func:`diffimpact.simulate`.
@@ -69,6 +71,49 @@ class SolverSettings(eqx.Module):
     adjoint: diffrax.AbstractAdjoint = eqx.field(
         static=True, default=diffrax.RecursiveCheckpointAdjoint()
     )
+
+    def __check_init__(self):
+        check_settings(self, ("quadrature_order",))
+
+
+# Fields of the settings classes, by kind.
+_POSITIVE = (
+    "rtol",
+    "atol",
+    "velocity_width",
+    "phase_width",
+    "slip_width",
+    "max_time",
+    "event_tol",
+    "factormax",
+)
+_OPTIONAL_POSITIVE = ("dtmax", "onset_step")
+_COUNTS = ("max_steps", "max_impacts")
+
+
+def check_settings(settings, counts=()) -> None:
+    """Static settings (:class:`SolverSettings`, ``SpanSettings``): plain
+    ``ValueError``/``TypeError`` at construction, naming the field."""
+    owner = type(settings).__name__
+    for name in _POSITIVE:
+        if hasattr(settings, name):
+            static_positive(owner, name, getattr(settings, name))
+    for name in _OPTIONAL_POSITIVE:
+        if hasattr(settings, name):
+            static_positive(owner, name, getattr(settings, name), allow_none=True)
+    for name in (*_COUNTS, *counts):
+        if hasattr(settings, name):
+            static_count(owner, name, getattr(settings, name))
+    if not isinstance(settings.solver, diffrax.AbstractSolver):
+        raise TypeError(
+            f"`{owner}.solver` must be a diffrax solver (e.g. diffrax.Dopri8()), "
+            f"got {type(settings.solver).__name__}"
+        )
+    if not isinstance(settings.adjoint, diffrax.AbstractAdjoint):
+        raise TypeError(
+            f"`{owner}.adjoint` must be a diffrax adjoint (e.g. "
+            f"diffrax.ForwardMode()), got {type(settings.adjoint).__name__}"
+        )
 
 
 def stored_steps_adjoint(adjoint, max_steps: int):

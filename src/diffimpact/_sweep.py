@@ -485,7 +485,12 @@ def check_normal_inputs(columns: Mapping[str, Any]) -> None:
 
 
 def normal_impact(
-    params: Mapping[str, Any], *, law=None, method="quadrature", settings=None
+    params: Mapping[str, Any],
+    *,
+    law=None,
+    method="quadrature",
+    settings=None,
+    throw: bool = False,
 ) -> dict:
     """One row of a normal-impact sweep: a sphere hitting a flat head-on.
 
@@ -503,8 +508,13 @@ def normal_impact(
     - `method`: default ``"quadrature"``, the ODE-free energy solution: exact
       to about 1e-11 and the fastest path (Hertz and Jackson-Green only).
     - `settings`: :class:`diffimpact.SolverSettings` (default settings).
+    - `throw`: default False: a row whose impact fails (outside the contact
+      model, say) gets NaN outputs and its code, and the sweep goes on; True
+      stops the whole sweep at the first failure.
 
-    **Returns:** dict of :data:`NORMAL_OUTPUTS` (SI: s, -, N, m, m, m/s).
+    **Returns:** dict of :data:`NORMAL_OUTPUTS` (SI: s, -, N, m, m, m/s) and
+    ``"result"``, the integer :class:`diffimpact.RESULTS` code of each row
+    (0: successful; :func:`diffimpact.result_name` names the others).
 
     Use with :func:`sweep` (``sweep(normal_impact, grid(velocity=...))``) or,
     for other laws, ``functools.partial(normal_impact, law=di.Hertz())``;
@@ -520,9 +530,12 @@ def normal_impact(
         JacksonGreen() if law is None else law,
         method,
         settings=SolverSettings() if settings is None else settings,
+        throw=throw,
     )
     # Only these outputs: XLA then drops the work nothing reads.
-    return {name: getattr(res, name) for name in NORMAL_OUTPUTS}
+    out = {name: getattr(res, name) for name in NORMAL_OUTPUTS}
+    out["result"] = res.result._value
+    return out
 
 
 # The public name (``diffimpact.normal_impact_row``): one row of a sweep.

@@ -8,7 +8,7 @@ import equinox as eqx
 import jax.numpy as jnp
 from jaxtyping import Array
 
-from .._checks import as_float, require_nonnegative, require_positive
+from .._checks import as_float, nonnegative, positive
 from .._materials import ContactProperties
 from .._smooth import adams_step, safe_pow
 from ._base import AbstractBoundLaw, AbstractNormalLaw
@@ -35,11 +35,13 @@ class AdamsImpact(AbstractNormalLaw):
     max_damping: Array = eqx.field(converter=as_float, default=10.0)
     penetration: Array = eqx.field(converter=as_float, default=1e-4)
 
-    def __check_init__(self):
-        require_positive(self.stiffness, "AdamsImpact.stiffness", "N/m^e")
-        require_positive(self.exponent, "AdamsImpact.exponent")
-        require_nonnegative(self.max_damping, "AdamsImpact.max_damping", "N s/m")
-        require_positive(self.penetration, "AdamsImpact.penetration", "m")
+    def _checks(self):
+        return [
+            positive(self.stiffness, "AdamsImpact.stiffness", "N/m^e"),
+            positive(self.exponent, "AdamsImpact.exponent"),
+            nonnegative(self.max_damping, "AdamsImpact.max_damping", "N s/m"),
+            positive(self.penetration, "AdamsImpact.penetration", "m"),
+        ]
 
     def bind(self, contact: ContactProperties, approach_velocity):
         return BoundAdamsImpact(

@@ -25,6 +25,7 @@ from typing import ClassVar
 import equinox as eqx
 import jax.numpy as jnp
 
+from .._checks import AbstractValidated
 from .._materials import ContactProperties
 
 # Deepest interference, as a fraction of the effective radius, that the contact
@@ -80,7 +81,7 @@ class AbstractBoundLaw(eqx.Module):
         return self.scale()[1]
 
 
-class AbstractNormalLaw(eqx.Module):
+class AbstractNormalLaw(AbstractValidated):
     """A normal contact force law: ``F_n(d, d_dot) >= 0``, zero for ``d <= 0``."""
 
     @abc.abstractmethod

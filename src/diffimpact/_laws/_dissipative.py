@@ -17,7 +17,7 @@ import equinox as eqx
 import jax.numpy as jnp
 from jaxtyping import Array
 
-from .._checks import as_float, require, require_positive
+from .._checks import as_float, check, positive
 from .._materials import ContactProperties
 from .._smooth import safe_pow
 from ._base import AbstractBoundLaw, AbstractNormalLaw
@@ -37,16 +37,19 @@ class _AbstractDampedHertz(AbstractNormalLaw):
     stiffness: Array | None = None
     calibrated: bool = eqx.field(static=True, default=False)
 
-    def __check_init__(self):
+    def _checks(self):
         name = type(self).__name__
-        require(
-            self.cor,
-            jnp.isfinite(self.cor) & (self.cor > 0) & (self.cor <= 1),
-            f"`{name}.cor` (target coefficient of restitution) must lie in (0, 1]",
-        )
-        require_positive(self.exponent, f"{name}.exponent")
+        out = [
+            check(
+                self.cor,
+                jnp.isfinite(self.cor) & (self.cor > 0) & (self.cor <= 1),
+                f"`{name}.cor` (target coefficient of restitution) must lie in (0, 1]",
+            ),
+            positive(self.exponent, f"{name}.exponent"),
+        ]
         if self.stiffness is not None:
-            require_positive(self.stiffness, f"{name}.stiffness", "N/m^n")
+            out.append(positive(self.stiffness, f"{name}.stiffness", "N/m^n"))
+        return out
 
     @abc.abstractmethod
     def damping_ratio_formula(self):

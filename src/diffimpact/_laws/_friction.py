@@ -9,7 +9,7 @@ import jax
 import jax.numpy as jnp
 from jaxtyping import Array
 
-from .._checks import as_float, require, require_nonnegative
+from .._checks import AbstractValidated, as_float, check, nonnegative
 
 # Edge of the "stick band" of plain Coulomb friction, in slip widths: beyond it
 # tanh(v_t / eps) > 0.9999, the friction force is fully mobilised (sliding).
@@ -65,7 +65,7 @@ def _saturate(z, delta=_HOLD_CORNER):
     )
 
 
-class Friction(eqx.Module):
+class Friction(AbstractValidated):
     """Coulomb plus viscous friction (F-1), optionally with a static coefficient
     above the kinetic one (F-2).
 
@@ -176,16 +176,25 @@ class Friction(eqx.Module):
         self.breakaway_slip = None if breakaway_slip is None else float(breakaway_slip)
         self.compliant = bool(compliant)
 
-    def __check_init__(self):
-        require_nonnegative(self.mu, "Friction.mu (kinetic coefficient mu_k)")
-        require_nonnegative(self.mu_v, "Friction.mu_v", "N s/m")
+    def _checks(self):
+        out = [
+            nonnegative(self.mu, "Friction.mu (kinetic coefficient mu_k)"),
+            nonnegative(self.mu_v, "Friction.mu_v", "N s/m"),
+        ]
         if self.mu_s is not None:
-            require(
-                self.mu_s,
-                jnp.isfinite(self.mu_s) & (self.mu_s >= self.mu),
-                "`Friction.mu_s` (static coefficient) must be finite and >= "
-                "`Friction.mu_k` (kinetic, the `mu` field) >= 0",
+            out.append(
+                check(
+                    self.mu_s,
+                    jnp.isfinite(self.mu_s) & (self.mu_s >= self.mu),
+                    "`Friction.mu_s` (static coefficient) must be finite and >= "
+                    "`Friction.mu_k` (kinetic, the `mu` field) >= 0",
+                )
             )
+        return out
+
+    def __check_init__(self):
+        # Static options; the numeric fields are checked by `_checks` (run at
+        # construction by AbstractValidated and again at every solve's entry).
         if self.compliant and self.mu_s is not None:
             raise ValueError(
                 "`Friction(compliant=True)` takes one coefficient `mu` (the "

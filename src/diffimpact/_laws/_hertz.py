@@ -7,7 +7,7 @@ from typing import ClassVar
 import equinox as eqx
 from jaxtyping import Array
 
-from .._checks import as_float, require_positive
+from .._checks import as_float, positive
 from .._materials import ContactProperties
 from .._smooth import safe_pow
 from ._base import AbstractBoundLaw, AbstractNormalLaw
@@ -26,10 +26,11 @@ class Hertz(AbstractNormalLaw):
     exponent: Array = eqx.field(converter=as_float, default=1.5)
     stiffness: Array | None = None
 
-    def __check_init__(self):
-        require_positive(self.exponent, "Hertz.exponent")
+    def _checks(self):
+        out = [positive(self.exponent, "Hertz.exponent")]
         if self.stiffness is not None:
-            require_positive(self.stiffness, "Hertz.stiffness", "N/m^n")
+            out.append(positive(self.stiffness, "Hertz.stiffness", "N/m^n"))
+        return out
 
     def bind(self, contact: ContactProperties, approach_velocity):
         k = contact.hertz_stiffness if self.stiffness is None else self.stiffness

@@ -13,12 +13,22 @@ import equinox as eqx
 import jax.numpy as jnp
 from jaxtyping import Array
 
-from .._checks import as_float
+from .._checks import as_float, check, finite, positive
 from .._materials import ContactProperties
 from .._smooth import safe_div, safe_pow, safe_powers, safe_sqrt, step
 from ._base import MAX_DEPTH, AbstractBoundLaw, AbstractNormalLaw
 
 _f = eqx.field
+
+_JG_FIELDS = (
+    "c_a", "c_b", "elastic_limit", "ep_decay", "ep_decay_exponent",
+    "hardness_scale", "hardness_exponent", "ep_exponent", "hg_a", "hg_b", "b_a",
+    "b_b", "dr_a", "dr_b", "dr_c", "dr_exponent", "unloading_exponent",
+)  # fmt: skip
+_JG_POSITIVE = (
+    "c_a", "elastic_limit", "hardness_scale", "hardness_exponent", "ep_exponent",
+    "hg_a", "b_a", "dr_c", "unloading_exponent",
+)  # fmt: skip
 
 
 class JacksonGreen(AbstractNormalLaw):
@@ -65,6 +75,21 @@ class JacksonGreen(AbstractNormalLaw):
         static=True, default="elastic_limit"
     )
     continuous: bool = _f(static=True, default=False)
+
+    def _checks(self):
+        # Every constant of the fit is finite; the scales, exponents and the
+        # elastic limit must be > 0 for the formulas to mean anything, and
+        # d_r = dr_a (...) d_m < d_m needs 0 <= dr_a < 1 (JG-8).
+        out = [finite(getattr(self, n), f"JacksonGreen.{n}") for n in _JG_FIELDS]
+        out += [positive(getattr(self, n), f"JacksonGreen.{n}") for n in _JG_POSITIVE]
+        out.append(
+            check(
+                self.dr_a,
+                (self.dr_a >= 0) & (self.dr_a < 1),
+                "`JacksonGreen.dr_a` must lie in [0, 1) (d_r < d_m, JG-8)",
+            )
+        )
+        return out
 
     def __check_init__(self):
         if self.yield_onset not in ("elastic_limit", "critical"):

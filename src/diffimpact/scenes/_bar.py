@@ -14,17 +14,14 @@ import equinox as eqx
 import jax.numpy as jnp
 from jaxtyping import Array
 
-from .._checks import as_float, require, require_positive
+from .._checks import AbstractValidated, as_float, check, positive, require
 from .._materials import Material, contact_properties
 from ._base import NormalProblem, rod_inertia
 from ._link import optional_float
 from ._planar import AbstractPlanarScene
 
-_ANGLE = "`FreeBar.angle` must lie in (0, pi/2] rad"
-_HEIGHT = "`FreeBar.height` (a drop height <= 0 gives no contact) must be > 0 in m"
 
-
-class AbstractRod(eqx.Module):
+class AbstractRod(AbstractValidated):
     """Fields, checks and geometry of a rigid rod with hemispherical ends,
     shared by :class:`FreeBar` (one impact) and
     :class:`diffimpact.scenes.BouncingBar` (a span of impacts)."""
@@ -40,22 +37,34 @@ class AbstractRod(eqx.Module):
     gravity: Array = eqx.field(converter=as_float, default=9.81)
     cross_section_inertia: bool = eqx.field(static=True, default=False)
 
-    def _check_rod(self, name: str):
+    def _checks(self):
         """The rules every such rod obeys, named after the scene class."""
-        require_positive(self.mass, f"{name}.mass", "kg")
-        require_positive(self.length, f"{name}.length", "m")
-        require_positive(self.diameter, f"{name}.diameter", "m")
+        name = type(self).__name__
+        out = [
+            positive(self.mass, f"{name}.mass", "kg"),
+            positive(self.length, f"{name}.length", "m"),
+            positive(self.diameter, f"{name}.diameter", "m"),
+        ]
         if self.tip_radius is not None:
-            require_positive(self.tip_radius, f"{name}.tip_radius", "m")
-        require(
-            self.length,
-            self.length > 2.0 * self.radius,
-            f"`{name}.length` must exceed twice the tip radius",
-        )
+            out.append(positive(self.tip_radius, f"{name}.tip_radius", "m"))
         a = self.angle
-        ok = jnp.isfinite(a) & (a > 0) & (a <= jnp.pi / 2)
-        require(a, ok, f"`{name}.angle` must lie in (0, pi/2] rad")
-        require_positive(self.gravity, f"{name}.gravity", "m/s^2")
+        out += [
+            check(
+                self.length,
+                self.length > 2.0 * self.radius,
+                f"`{name}.length` must exceed twice the tip radius",
+            ),
+            check(
+                a,
+                jnp.isfinite(a) & (a > 0) & (a <= jnp.pi / 2),
+                f"`{name}.angle` must lie in (0, pi/2] rad",
+            ),
+            positive(self.gravity, f"{name}.gravity", "m/s^2"),
+            positive(
+                self.height, f"{name}.height (a drop height <= 0 gives no contact)", "m"
+            ),
+        ]
+        return out
 
     @property
     def radius(self):
@@ -130,26 +139,20 @@ class FreeBar(AbstractRod, AbstractPlanarScene):
     (contact point).
     """
 
-    def __check_init__(self):
-        self._check_rod("FreeBar")
-        h = self.height
-        require(h, jnp.isfinite(h) & (h > 0), _HEIGHT)
-
     @property
     def impact_speed(self):
         """``v' = sqrt(2 g h)`` [m/s]."""
-        # Guarded here too: under jit/grad the eager check cannot see values.
-        h = require(self.height, jnp.isfinite(self.height) & (self.height > 0), _HEIGHT)
+        # Guarded here too, for a direct use of the property under jit.
+        name = type(self).__name__
+        h = require(*positive(self.height, f"{name}.height", "m"))
         return jnp.sqrt(2.0 * self.gravity * h)
 
     def mass_diagonal(self):
         return jnp.stack([self.mass, self.mass, self.inertia])
 
     def initial_state(self):
-        a = self.angle
-        a = require(a, jnp.isfinite(a) & (a > 0) & (a <= jnp.pi / 2), _ANGLE)
         v = self.impact_speed
-        zero = jnp.zeros_like(v + a)
+        zero = jnp.zeros_like(v + self.angle)
         return jnp.stack([zero, zero, zero]), jnp.stack([zero, -v, zero])
 
     @property

@@ -7,6 +7,7 @@ import abc
 import equinox as eqx
 from jaxtyping import Array
 
+from .._checks import AbstractValidated
 from .._materials import ContactProperties
 
 
@@ -24,7 +25,7 @@ class NormalProblem(eqx.Module):
     gravity: Array
 
 
-class AbstractScene(eqx.Module):
+class AbstractScene(AbstractValidated):
     @abc.abstractmethod
     def normal_problem(self) -> NormalProblem:
         """The scene's normal contact problem at first contact."""

@@ -10,7 +10,7 @@ import equinox as eqx
 import jax.numpy as jnp
 from jaxtyping import Array
 
-from .._checks import as_float, require, require_positive
+from .._checks import as_float, check, positive, require
 from .._materials import Material, contact_properties
 from ._base import NormalProblem, rod_inertia
 from ._planar import AbstractPlanarScene
@@ -106,22 +106,25 @@ class RotatingLink(AbstractPlanarScene):
     gravity: Array = eqx.field(converter=as_float, default=9.81)
     cross_section_inertia: bool = eqx.field(static=True, default=False)
 
-    def __check_init__(self):
-        require_positive(self.mass, "RotatingLink.mass", "kg")
-        require_positive(self.length, "RotatingLink.length", "m")
-        require_positive(self.diameter, "RotatingLink.diameter", "m")
+    def _checks(self):
+        out = [
+            positive(self.mass, "RotatingLink.mass", "kg"),
+            positive(self.length, "RotatingLink.length", "m"),
+            positive(self.diameter, "RotatingLink.diameter", "m"),
+        ]
         if self.tip_radius is not None:
-            require_positive(self.tip_radius, "RotatingLink.tip_radius", "m")
-        require(
-            self.length,
-            self.length > self.radius,
-            "`RotatingLink.length` must exceed the tip radius",
-        )
-        a = self.impact_angle
-        require(a, jnp.isfinite(a) & (a > 0) & (a < jnp.pi / 2), _IMPACT_ANGLE)
-        b = self.release_angle
-        require(b, jnp.isfinite(b) & (b >= -jnp.pi / 2) & (b < a), _RELEASE_ANGLE)
-        require_positive(self.gravity, "RotatingLink.gravity", "m/s^2")
+            out.append(positive(self.tip_radius, "RotatingLink.tip_radius", "m"))
+        a, b = self.impact_angle, self.release_angle
+        return out + [
+            check(
+                self.length,
+                self.length > self.radius,
+                "`RotatingLink.length` must exceed the tip radius",
+            ),
+            check(a, jnp.isfinite(a) & (a > 0) & (a < jnp.pi / 2), _IMPACT_ANGLE),
+            check(b, jnp.isfinite(b) & (b >= -jnp.pi / 2) & (b < a), _RELEASE_ANGLE),
+            positive(self.gravity, "RotatingLink.gravity", "m/s^2"),
+        ]
 
     @property
     def radius(self):
@@ -142,8 +145,8 @@ class RotatingLink(AbstractPlanarScene):
     @property
     def impact_angular_velocity(self):
         """``omega_0 = sqrt(m g L (sin(alpha) - sin(beta)) / I)`` [rad/s] (energy)."""
-        # Guarded here too: under jit/grad the eager check above cannot see the
-        # values, and a release below the contact would give sqrt(<0) = NaN.
+        # Guarded here too, for a direct use of the property under jit (a
+        # release below the contact would give sqrt(<0) = NaN).
         drop = jnp.sin(self.impact_angle) - jnp.sin(self.release_angle)
         drop = require(drop, jnp.isfinite(drop) & (drop > 0), _RELEASE_ANGLE)
         work = self.mass * self.gravity * 0.5 * self.length * drop
@@ -157,7 +160,6 @@ class RotatingLink(AbstractPlanarScene):
 
     def initial_state(self):
         a = self.impact_angle
-        a = require(a, jnp.isfinite(a) & (a > 0) & (a < jnp.pi / 2), _IMPACT_ANGLE)
         return jnp.zeros_like(a)[None], self.impact_angular_velocity[None]
 
     def kinematics(self, q):

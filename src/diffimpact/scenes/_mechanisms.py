@@ -48,13 +48,7 @@ import jax
 import jax.numpy as jnp
 from jaxtyping import Array
 
-from .._checks import (
-    as_float,
-    require,
-    require_finite,
-    require_nonnegative,
-    require_positive,
-)
+from .._checks import AbstractValidated, as_float, check, finite, nonnegative, positive
 from .._materials import ContactProperties, Material, contact_properties
 from ._bar import AbstractRod, FreeBar
 from ._link import optional_float
@@ -76,7 +70,7 @@ class MechanismScales(eqx.Module):
     force: Array
 
 
-class AbstractMechanism(eqx.Module):
+class AbstractMechanism(AbstractValidated):
     """What :func:`diffimpact.simulate_span` needs from a scene (see the module
     docstring for the equations).
 
@@ -126,8 +120,6 @@ class AbstractMechanism(eqx.Module):
 # A bar bouncing on a board.
 # --------------------------------------------------------------------------
 
-_ANGLE = "`BouncingBar.angle` must lie in (0, pi/2] rad"
-
 
 class BouncingBar(AbstractRod, AbstractMechanism):
     """A free rigid bar with hemispherical ends dropped onto a flat board under
@@ -174,11 +166,6 @@ class BouncingBar(AbstractRod, AbstractMechanism):
     ``height`` (``y``) and ``mechanical_energy``.
     """
 
-    def __check_init__(self):
-        # The single-impact bar's rules, with this class's name in the messages.
-        self._check_rod("BouncingBar")
-        require_positive(self.height, "BouncingBar.height", "m")
-
     def first_impact(self) -> FreeBar:
         """The first impact as the single-impact scene (for
         :func:`diffimpact.simulate`)."""
@@ -196,11 +183,7 @@ class BouncingBar(AbstractRod, AbstractMechanism):
         )
 
     def initial_state(self):
-        a = require(
-            self.angle,
-            jnp.isfinite(self.angle) & (self.angle > 0) & (self.angle <= jnp.pi / 2),
-            _ANGLE,
-        )
+        a = self.angle
         y0 = self.radius + self.arm * jnp.sin(a) + self.height
         zero = jnp.zeros_like(y0)
         return jnp.stack([zero, y0, a]), jnp.stack([zero, zero, zero])
@@ -350,38 +333,45 @@ class SliderCrank(AbstractMechanism):
     clearance: Array = eqx.field(converter=as_float, default=3e-5)
     pin_radius: Array = eqx.field(converter=as_float, default=0.02)
     bearing_radius: Array = eqx.field(converter=as_float, default=0.02002)
-    pin: Material = Material(210e9, 0.3)
-    bearing: Material = Material(71e9, 0.33)
+    # Made per instance, not at import: an array created at import would
+    # start JAX's backend in the host program (and fix its dtype before the
+    # host chooses float64).
+    pin: Material = eqx.field(default_factory=lambda: Material(210e9, 0.3))
+    bearing: Material = eqx.field(default_factory=lambda: Material(71e9, 0.33))
     motor_torque: Array = eqx.field(converter=as_float, default=0.1)
     motor_speed: Array = eqx.field(converter=as_float, default=2.0)
     crank_angle: Array = eqx.field(converter=as_float, default=0.0)
     gravity: Array = eqx.field(converter=as_float, default=0.0)
 
-    def __check_init__(self):
-        for name, unit in [
-            ("crank_length", "m"),
-            ("rod_length", "m"),
-            ("crank_inertia", "kg m^2"),
-            ("rod_mass", "kg"),
-            ("piston_mass", "kg"),
-            ("pin_radius", "m"),
-            ("bearing_radius", "m"),
-            ("motor_speed", "rad/s"),
-        ]:
-            require_positive(getattr(self, name), f"SliderCrank.{name}", unit)
+    def _checks(self):
+        out = [
+            positive(getattr(self, name), f"SliderCrank.{name}", unit)
+            for name, unit in [
+                ("crank_length", "m"),
+                ("rod_length", "m"),
+                ("crank_inertia", "kg m^2"),
+                ("rod_mass", "kg"),
+                ("piston_mass", "kg"),
+                ("pin_radius", "m"),
+                ("bearing_radius", "m"),
+                ("motor_speed", "rad/s"),
+            ]
+        ]
         if self.rod_inertia is not None:
-            require_positive(self.rod_inertia, "SliderCrank.rod_inertia", "kg m^2")
+            out.append(positive(self.rod_inertia, "SliderCrank.rod_inertia", "kg m^2"))
         if self.rod_centre is not None:
-            require_nonnegative(self.rod_centre, "SliderCrank.rod_centre", "m")
-        require_nonnegative(self.clearance, "SliderCrank.clearance", "m")
-        require_nonnegative(self.gravity, "SliderCrank.gravity", "m/s^2")
-        require_finite(self.motor_torque, "SliderCrank.motor_torque")
-        require_finite(self.crank_angle, "SliderCrank.crank_angle")
-        require(
-            self.rod_length,
-            self.rod_length > self.crank_length + self.clearance,
-            "`SliderCrank.rod_length` must exceed crank_length + clearance",
-        )
+            out.append(nonnegative(self.rod_centre, "SliderCrank.rod_centre", "m"))
+        return out + [
+            nonnegative(self.clearance, "SliderCrank.clearance", "m"),
+            nonnegative(self.gravity, "SliderCrank.gravity", "m/s^2"),
+            finite(self.motor_torque, "SliderCrank.motor_torque"),
+            finite(self.crank_angle, "SliderCrank.crank_angle"),
+            check(
+                self.rod_length,
+                self.rod_length > self.crank_length + self.clearance,
+                "`SliderCrank.rod_length` must exceed crank_length + clearance",
+            ),
+        ]
 
     def cast_iron_bearing(self) -> SliderCrank:
         """The same mechanism with the source's steel/cast-iron pair

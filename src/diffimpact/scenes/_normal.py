@@ -6,7 +6,7 @@ import equinox as eqx
 import jax.numpy as jnp
 from jaxtyping import Array
 
-from .._checks import as_float, require, require_finite, require_positive
+from .._checks import as_float, check, finite, positive
 from .._materials import Material, contact_properties
 from ._base import AbstractScene, NormalProblem
 
@@ -30,11 +30,13 @@ class NormalImpact(AbstractScene):
     velocity: Array = eqx.field(converter=as_float)
     gravity: Array = eqx.field(converter=as_float, default=0.0)
 
-    def __check_init__(self):
-        require_positive(self.mass, "NormalImpact.mass", "kg")
-        require_positive(self.radius, "NormalImpact.radius", "m")
-        _check_approach(self.velocity, "NormalImpact.velocity")
-        require_finite(self.gravity, "NormalImpact.gravity")
+    def _checks(self):
+        return [
+            positive(self.mass, "NormalImpact.mass", "kg"),
+            positive(self.radius, "NormalImpact.radius", "m"),
+            _approach(self.velocity, "NormalImpact.velocity"),
+            finite(self.gravity, "NormalImpact.gravity"),
+        ]
 
     def normal_problem(self):
         return NormalProblem(
@@ -69,20 +71,22 @@ class Collinear(AbstractScene):
     body2: Material
     radius2: Array = eqx.field(converter=as_float, default=jnp.inf)
 
-    def __check_init__(self):
-        require_positive(self.mass1, "Collinear.mass1", "kg")
-        require_positive(self.mass2, "Collinear.mass2", "kg")
-        require_finite(self.velocity1, "Collinear.velocity1")
-        require_finite(self.velocity2, "Collinear.velocity2")
-        _check_approach(
-            self.velocity1 - self.velocity2, "Collinear.velocity1 - velocity2"
-        )
-        require_positive(self.radius1, "Collinear.radius1", "m")
-        require(
-            self.radius2,
-            self.radius2 > 0,
-            "`Collinear.radius2` must be > 0 (inf for a flat)",
-        )
+    def _checks(self):
+        return [
+            positive(self.mass1, "Collinear.mass1", "kg"),
+            positive(self.mass2, "Collinear.mass2", "kg"),
+            finite(self.velocity1, "Collinear.velocity1"),
+            finite(self.velocity2, "Collinear.velocity2"),
+            _approach(
+                self.velocity1 - self.velocity2, "Collinear.velocity1 - velocity2"
+            ),
+            positive(self.radius1, "Collinear.radius1", "m"),
+            check(
+                self.radius2,
+                self.radius2 > 0,
+                "`Collinear.radius2` must be > 0 (inf for a flat)",
+            ),
+        ]
 
     @property
     def reduced_mass(self):
@@ -107,11 +111,10 @@ class Collinear(AbstractScene):
         }
 
 
-def _check_approach(v, name):
-    require_finite(v, name)
-    require(
+def _approach(v, name):
+    return check(
         v,
-        v > 0,
-        f"`{name}` must be > 0: the normal approach speed at first contact "
-        "(a value <= 0 means the bodies separate instead of approaching)",
+        jnp.isfinite(v) & (v > 0),
+        f"`{name}` must be finite and > 0: the normal approach speed at first "
+        "contact (a value <= 0 means the bodies separate instead of approaching)",
     )

@@ -16,7 +16,7 @@ import equinox as eqx
 import jax.numpy as jnp
 from jaxtyping import Array
 
-from .._checks import as_float, require, require_positive
+from .._checks import as_float, check, positive
 from .._materials import Material, contact_properties
 from ._base import AbstractScene, NormalProblem
 
@@ -79,20 +79,23 @@ class SphereOnIncline(AbstractPlanarScene):
     gravity: Array = eqx.field(converter=as_float, default=9.81)
     normal_decouples: ClassVar[bool] = True
 
-    def __check_init__(self):
-        require_positive(self.mass, "SphereOnIncline.mass", "kg")
-        require_positive(self.radius, "SphereOnIncline.radius", "m")
-        require(
-            self.angle,
-            jnp.isfinite(self.angle) & (self.angle >= 0) & (self.angle < jnp.pi / 2),
-            "`SphereOnIncline.angle` must lie in [0, pi/2) rad",
-        )
-        require_positive(
-            self.height,
-            "SphereOnIncline.height (a drop height <= 0 gives no contact)",
-            "m",
-        )
-        require_positive(self.gravity, "SphereOnIncline.gravity", "m/s^2")
+    def _checks(self):
+        a = self.angle
+        return [
+            positive(self.mass, "SphereOnIncline.mass", "kg"),
+            positive(self.radius, "SphereOnIncline.radius", "m"),
+            check(
+                a,
+                jnp.isfinite(a) & (a >= 0) & (a < jnp.pi / 2),
+                "`SphereOnIncline.angle` must lie in [0, pi/2) rad",
+            ),
+            positive(
+                self.height,
+                "SphereOnIncline.height (a drop height <= 0 gives no contact)",
+                "m",
+            ),
+            positive(self.gravity, "SphereOnIncline.gravity", "m/s^2"),
+        ]
 
     @property
     def impact_speed(self):
