@@ -29,7 +29,7 @@ def test_fit_writes_outputs_and_never_overwrites(tmp_path, capsys):
     s_y = fit["parameters"]["yield_strength"]
     assert abs(s_y["value"] / 400e6 - 1) < 0.05 and s_y["std_error"] > 0
     rows = (out / "residuals.csv").read_text().splitlines()
-    assert rows[0].startswith("row,impact_velocity,quantity") and len(rows) == 7
+    assert rows[0].startswith("line,impact_velocity,quantity") and len(rows) == 7
     assert (out / "fit.png").stat().st_size > 0 and (out / "loop.png").exists()
     before = (out / "fit.json").read_text()
     assert main(argv) == 2  # refuses, before fitting

@@ -51,11 +51,11 @@ def test_write_then_load_round_trip_and_no_overwrite(tmp_path):
         ("scene,drop_height_m,cor_normal\n", "no rows"),
         (
             "drop_height_m,angle_deg,cor_normal\n0.2,abc,0.5\n",
-            r"row 2.*angle_deg.*not a number",
+            r"line 2.*angle_deg.*not a number",
         ),
         (
             "drop_height_m,contact_time_s\n0.2,-1e-5\n",
-            r"row 2.*contact_time_s.*negative",
+            r"line 2.*contact_time_s.*negative",
         ),
         (
             "drop_height_furlong,cor_normal\n1,0.5\n",
@@ -67,9 +67,9 @@ def test_write_then_load_round_trip_and_no_overwrite(tmp_path):
         ("height_m,cor_normal\n1,0.5\n", "unknown column 'height_m'"),
         ("drop_height_m,angle_deg\n1,30\n", "no measured output"),
         ("drop_height_m,cor_normal,sigma_contact_time_s\n1,0.5,1\n", "no measured"),
-        ("drop_height_m,cor_normal,sigma_cor_normal\n1,0.5,0\n", r"row 2.*> 0"),
-        ("drop_height_m,cor_normal\n,0.5\n", r"row 2.*drop_height_m.*empty"),
-        ("drop_height_m,cor_normal\n1,0.5,7\n", r"row 2: 3 fields, expected 2"),
+        ("drop_height_m,cor_normal,sigma_cor_normal\n1,0.5,0\n", r"line 2.*> 0"),
+        ("drop_height_m,cor_normal\n,0.5\n", r"line 2.*drop_height_m.*empty"),
+        ("drop_height_m,cor_normal\n1,0.5,7\n", r"line 2: 3 fields, expected 2"),
         ("drop_height_m,drop_height_mm,cor_normal\n1,1,0.5\n", "both give"),
         (
             "scene,impact_velocity_m_s,cor_normal\na,1,0.5\nb,1,0.5\n",

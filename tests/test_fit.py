@@ -154,7 +154,7 @@ def test_scene_and_columns_must_agree(tmp_path):
         di.fit(q, "sphere_on_incline", free="mu")
     r = tmp_path / "e.csv"
     r.write_text("drop_height_m,angle_deg,cor_normal\n0.3,95,0.5\n")
-    with pytest.raises(ValueError, match=r"data row 1.*angle"):
+    with pytest.raises(ValueError, match=r"line 2.*angle"):
         di.fit(r, "sphere_on_incline", free="mu")
 
 

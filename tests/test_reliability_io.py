@@ -323,3 +323,41 @@ def test_fit_json_is_strict(tmp_path, capsys, monkeypatch):
         _json_ready({"se": [1.0, math.inf], "x": math.nan}), allow_nan=False
     )
     assert json.loads(text) == {"se": [1.0, None], "x": None}
+
+
+def test_fit_names_failed_rows(tmp_path):
+    """A row outside the contact model (2 km/s) is named by its line, with the
+    reason, before any iteration."""
+    p = tmp_path / "fast.csv"
+    p.write_text(
+        "scene,impact_velocity_m_s,cor_normal\n"
+        "normal_impact,1.0,0.6\nnormal_impact,2000.0,0.3\nnormal_impact,2.0,0.55\n"
+    )
+    with pytest.raises(ValueError, match=r"line 3: outside model.*contact model"):
+        di.fit(p, free="yield_strength")
+
+
+def test_fit_refuses_bad_start_and_fixed_values(monkeypatch):
+    monkeypatch.chdir(ROOT)
+    with pytest.raises(ValueError, match="start value of 'mu'"):
+        di.fit("data/ball_prism.csv", free="mu", start={"mu": -0.1})
+    e = di.Experiment.default("sphere_on_incline")
+    from diffimpact._observables import set_parameters
+
+    with pytest.raises(ValueError, match="Material.poisson_ratio"):
+        set_parameters(e, {"poisson_ratio": 0.7})
+
+
+def test_predict_under_jit_and_vmap():
+    import jax
+    import jax.numpy as jnp
+
+    e = di.Experiment.default("sphere_on_incline")
+
+    def cor(angle):
+        return di.predict(e, {"angle": angle})["cor_normal"]
+
+    assert np.isfinite(float(jax.jit(cor)(0.5)))
+    for f in (jax.jit(cor), lambda a: jax.vmap(cor)(jnp.array([0.5, a]))):
+        with pytest.raises(Exception, match="SphereOnIncline.angle"):
+            jax.block_until_ready(f(1.6))

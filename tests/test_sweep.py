@@ -59,7 +59,8 @@ def test_chunked_equals_one_vmap(chunk_size, one_vmap):
     """35 rows in chunks of 8 and 16 (last chunk padded) and in one chunk: the
     same bits as one vmap over everything, padding stripped."""
     out = sweep(normal_impact, GRID, chunk_size=chunk_size)
-    assert set(out) == set(NORMAL_OUTPUTS)
+    assert set(out) == {*NORMAL_OUTPUTS, "result"}
+    assert np.all(out["result"] == 0)  # every row successful
     for name in NORMAL_OUTPUTS:
         assert out[name].shape == (35,) and isinstance(out[name], np.ndarray)
         np.testing.assert_array_equal(out[name], one_vmap[name], err_msg=name)
@@ -203,9 +204,9 @@ def test_cli_writes_csv_and_png_and_refuses_to_overwrite(tmp_path, capsys):
     assert header == [
         "velocity_m_s", "yield_strength_Pa", "radius_m", "contact_time_s",
         "cor_newton", "max_force_N", "max_deflection_m", "permanent_deformation_m",
-        "rebound_velocity_m_s",
+        "rebound_velocity_m_s", "result",
     ]  # fmt: skip
-    table = np.loadtxt(csv, delimiter=",", skiprows=1)
+    table = np.loadtxt(csv, delimiter=",", skiprows=1, usecols=range(9))
     assert table.shape == (24, 9)
     # The rows are the grid, first axis slowest; outputs to the CSV's digits.
     assert np.allclose(table[:4, 0], 0.1) and np.allclose(table[::4, 1], 1e8)
@@ -234,13 +235,15 @@ def test_cli_writes_csv_and_png_and_refuses_to_overwrite(tmp_path, capsys):
 
 def test_cli_one_axis_and_sample(tmp_path, capsys):
     assert _cli(["--velocity", "0.1:1:5", "--out", str(tmp_path / "a")]) == 0
-    assert np.loadtxt(tmp_path / "a/sweep.csv", delimiter=",", skiprows=1).shape == (
+    assert np.loadtxt(
+        tmp_path / "a/sweep.csv", delimiter=",", skiprows=1, usecols=range(7)
+    ).shape == (
         5,
         7,
     )
     argv = ["--velocity", "0.1:10:log", "--yield-strength", "1e8:1e9", "--sample", "50"]
     assert _cli([*argv, "--out", str(tmp_path / "b"), "--no-progress"]) == 0
-    t = np.loadtxt(tmp_path / "b/sweep.csv", delimiter=",", skiprows=1)
+    t = np.genfromtxt(tmp_path / "b/sweep.csv", delimiter=",", skip_header=1)[:, :-1]
     assert t.shape == (50, 8) and 0.1 <= t[:, 0].min() and t[:, 0].max() < 10
     assert (tmp_path / "b/sweep.png").stat().st_size > 10_000
 

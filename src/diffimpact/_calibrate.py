@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import jax.numpy as jnp
 
+from ._checks import require, require_positive
 from ._laws._dissipative import BoundDampedHertz
 from ._materials import ContactProperties
 from ._root import newton_root
@@ -47,6 +48,12 @@ def damping_ratio(cor, exponent=1.5):
     """
     cor = jnp.asarray(cor, dtype=jnp.result_type(float))
     exponent = jnp.asarray(exponent, dtype=cor.dtype)
+    cor = require(
+        cor,
+        jnp.isfinite(cor) & (cor > 0) & (cor <= 1),
+        "`cor` (target coefficient of restitution) must lie in (0, 1]",
+    )
+    exponent = require_positive(exponent, "exponent")
 
     def residual(zeta, args):
         target, n = args

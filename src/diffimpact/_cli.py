@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
+import logging
 import math
 import sys
 import time
@@ -394,6 +395,10 @@ def run_command(func, args) -> int:
 
     # The CLI is a program of its own: it may choose float64 for itself.
     jax.config.update("jax_enable_x64", True)
+    # A check that fires inside a compiled solve raises through a JAX
+    # callback, which also logs the Python traceback: the message below is
+    # what the user needs.
+    logging.getLogger("jax._src.callback").setLevel(logging.CRITICAL)
     try:
         return func(args)
     except (ValueError, TypeError, FileExistsError) as err:  # bad input
