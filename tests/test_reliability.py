@@ -350,3 +350,126 @@ def test_settings_types():
         di.SolverSettings(solver="dopri8")
     with pytest.raises(TypeError, match="settings"):
         di.simulate(_soft_sphere(0.1), di.Hertz(), settings=dict(rtol=1e-8))
+
+
+def _span(height, mu=0.2, max_steps=16384):
+    bar = di.scenes.BouncingBar(
+        0.04718, di.Material(200e9, 0.3, 230e6), di.Material(205e9, 0.29), height
+    )
+    return di.simulate_span(
+        bar,
+        di.Hertz(),
+        (0.0, 0.02),
+        friction=di.Friction(mu),
+        settings=di.SpanSettings(max_steps=max_steps),
+    )
+
+
+def test_span_checks_and_codes():
+    """simulate_span: bad input refused eagerly, under vmap, grad and jit (one
+    compilation, its good row finite); a step budget that runs out is a code
+    with throw=False and a StepBudgetError with throw=True."""
+    with pytest.raises(ValueError, match="BouncingBar.height"):
+        _span(-0.1)
+    with pytest.raises(Exception, match="BouncingBar.height"):
+        jax.vmap(lambda h: _span(h).kinetic_energy)(jnp.array([0.05, -0.1]))
+    with pytest.raises(Exception, match="Friction.mu"):
+        jax.grad(lambda mu: _span(0.05, mu).kinetic_energy)(-0.1)
+    jitted = jax.jit(lambda h, mu: _span(h, mu).kinetic_energy)
+    assert np.isfinite(float(jitted(0.05, 0.2)))
+    for args, message in (((-0.1, 0.2), "BouncingBar.height"), ((0.05, -1.0), "mu")):
+        with pytest.raises(Exception, match=message):
+            jax.block_until_ready(jitted(*args))
+    with pytest.raises(di.StepBudgetError):
+        _span(0.05, max_steps=8)
+    r = di.simulate_span(
+        di.scenes.BouncingBar(
+            0.04718, di.Material(200e9, 0.3), di.Material(205e9, 0.29), 0.05
+        ),
+        di.Hertz(),
+        (0.0, 0.02),
+        settings=di.SpanSettings(max_steps=8),
+        throw=False,
+    )
+    assert r.result == di.RESULTS.max_steps_reached
+    assert np.isnan(float(r.kinetic_energy))
+
+
+def _steel():
+    return di.Material(2e11, 0.3)
+
+
+# Every public constructor with a domain, one bad value each (the end-to-end
+# cases above cover the solve paths; here the guard every solve runs).
+CONSTRUCTORS = [
+    (lambda x: di.Hertz(exponent=x), 1.5, -1.0, "Hertz.exponent"),
+    (lambda x: di.Hertz(stiffness=x), 1e10, 0.0, "Hertz.stiffness"),
+    (lambda x: di.LankaraniNikravesh(cor=x), 0.8, 1.1, "LankaraniNikravesh.cor"),
+    (lambda x: di.Flores(cor=x), 0.8, math.nan, "Flores.cor"),
+    (lambda x: di.AdamsImpact(stiffness=x), 1e8, -1.0, "AdamsImpact.stiffness"),
+    (lambda x: di.AdamsImpact(max_damping=x), 10.0, -1.0, "AdamsImpact.max_damping"),
+    (lambda x: di.JacksonGreen(c_a=x), 1.295, math.inf, "JacksonGreen.c_a"),
+    (lambda x: di.Friction(0.2, mu_s=x), 0.3, 0.1, "Friction.mu_s"),
+    (
+        lambda x: di.scenes.RotatingLink(0.1, 0.2, 0.01, _steel(), _steel(), x),
+        0.5,
+        1.7,
+        "RotatingLink.impact_angle",
+    ),
+    (
+        lambda x: di.scenes.RotatingLink(0.1, 0.2, 0.01, _steel(), _steel(), 0.5, x),
+        0.0,
+        0.6,
+        "release_angle",
+    ),
+    (
+        lambda x: di.scenes.FreeBar(0.05, _steel(), _steel(), x),
+        0.3,
+        0.0,
+        "FreeBar.height",
+    ),
+    (
+        lambda x: di.scenes.FreeBar(0.05, _steel(), _steel(), 0.3, angle=x),
+        0.7,
+        -0.1,
+        "FreeBar.angle",
+    ),
+    (
+        lambda x: di.scenes.BouncingBar(0.05, _steel(), _steel(), 0.3, diameter=x),
+        0.01,
+        0.1,
+        "BouncingBar.length",
+    ),
+    (
+        lambda x: di.scenes.SliderCrank(clearance=x),
+        3e-5,
+        -1e-5,
+        "SliderCrank.clearance",
+    ),
+    (
+        lambda x: di.scenes.SliderCrank(motor_torque=x),
+        0.1,
+        math.nan,
+        "SliderCrank.motor_torque",
+    ),
+]
+
+
+@pytest.mark.parametrize(
+    "build, good, bad, message", CONSTRUCTORS, ids=[c[3] for c in CONSTRUCTORS]
+)
+def test_every_constructor_eagerly_and_traced(build, good, bad, message):
+    from diffimpact._checks import guard
+
+    pattern = message.replace(".", r"\.")
+    with pytest.raises(ValueError, match=pattern):
+        build(bad)
+
+    def checked(x):
+        return jax.tree.leaves(guard(build(x)))[0]
+
+    assert np.all(np.isfinite(jax.jit(checked)(good)))
+    with pytest.raises(Exception, match=pattern):
+        jax.block_until_ready(jax.jit(checked)(bad))
+    with pytest.raises(Exception, match=pattern):
+        jax.vmap(checked)(jnp.array([good, bad]))

@@ -719,7 +719,6 @@ def _setup(scene, law, friction, settings):
 
 @eqx.filter_jit
 def _simulate_span(scene, law, t_span, friction, settings, n_save, throw):
-    scene, law, friction = guard((scene, law, friction))
     p, y0 = _setup(scene, law, friction, settings)
     q0, q_dot0 = scene.initial_state()
     n, nc = p.n, p.nc
@@ -938,9 +937,9 @@ def simulate_span(
         "`t_span[1]` must be finite and greater than `t_span[0]` (seconds)",
     )
     t_span = (t0, t1)
+    # As in `simulate`: eagerly a ValueError, traced a threaded check.
+    scene, law, friction = guard((scene, law, friction))
     traced = is_traced((scene, law, friction, t_span))
-    if not traced:  # bad input: ValueError naming the field, before any solve
-        guard((scene, law, friction))
     res = _simulate_span(
         scene, law, t_span, friction, settings, n_save, throw and traced
     )

@@ -472,13 +472,17 @@ def _assemble(problem: NormalProblem, bound: AbstractBoundLaw, raw: dict) -> dic
     )
 
 
-def _bind(law: AbstractNormalLaw, problem: NormalProblem) -> AbstractBoundLaw:
+def _bind(
+    law: AbstractNormalLaw, problem: NormalProblem, zeta=None
+) -> AbstractBoundLaw:
+    """``law`` bound to ``problem``; ``zeta``: a calibrated law's damping ratio
+    when already computed (it does not depend on the problem)."""
     if isinstance(law, _AbstractDampedHertz) and law.calibrated:
         from ._calibrate import damping_ratio
 
-        return law.bind(
-            problem.contact, problem.velocity, damping_ratio(law.cor, law.exponent)
-        )
+        if zeta is None:
+            zeta = damping_ratio(law.cor, law.exponent)
+        return law.bind(problem.contact, problem.velocity, zeta)
     return law.bind(problem.contact, problem.velocity)
 
 
@@ -507,7 +511,14 @@ def within_model(law, problem: NormalProblem, stand_in: bool = True):
     impact at the speed that reaches ``0.1 R``, so that its (discarded) solve
     stays short and finite in values and gradients, and a ``vmap`` batch is
     not slowed or poisoned by one bad row."""
-    bound = _bind(law, problem)
+    # A calibrated law's damping ratio (a root solve through ODE solves) does
+    # not depend on the speed: computed once for both bindings.
+    zeta = None
+    if isinstance(law, _AbstractDampedHertz) and law.calibrated:
+        from ._calibrate import damping_ratio
+
+        zeta = damping_ratio(law.cor, law.exponent)
+    bound = _bind(law, problem, zeta)
     k, n = bound.scale()
     m, v0 = problem.mass, problem.velocity
     radius = problem.contact.effective_radius
@@ -518,7 +529,7 @@ def within_model(law, problem: NormalProblem, stand_in: bool = True):
         v_in = jnp.sqrt(2.0 * k * depth ** (n + 1.0) / ((n + 1.0) * m))
         v_safe = jnp.where(outside, v_in, v0)
         problem = eqx.tree_at(lambda p: p.velocity, problem, v_safe)
-        bound = _bind(law, problem)
+        bound = _bind(law, problem, zeta)
     return problem, bound, result
 
 
@@ -564,9 +575,6 @@ def _quadrature(problem, bound, settings):
 def _simulate(scene, law, method, settings, n_history, friction, throw):
     from .scenes._planar import AbstractPlanarScene
 
-    # Every check of the inputs, threaded through them: it runs first and
-    # cannot be dropped (see `_checks.guard`).
-    scene, law, friction = guard((scene, law, friction))
     if isinstance(scene, AbstractPlanarScene) and (
         friction is not None or not scene.normal_decouples
     ):
@@ -662,9 +670,11 @@ def simulate(
             f"`settings` must be a diffimpact.SolverSettings, got "
             f"{type(settings).__name__}"
         )
+    # Every check of the inputs: eagerly a ValueError naming the field, before
+    # any solve; traced, threaded through the inputs, so it runs first and
+    # cannot be dropped (see `_checks.guard`).
+    scene, law, friction = guard((scene, law, friction))
     traced = is_traced((scene, law, friction))
-    if not traced:  # bad input: ValueError naming the field, before any solve
-        guard((scene, law, friction))
     res = _simulate(scene, law, method, settings, n_history, friction, throw and traced)
     if throw and not traced:
         raise_if_failed(res.result)
