@@ -359,7 +359,7 @@ def _span(height, mu=0.2, max_steps=16384):
     return di.simulate_span(
         bar,
         di.Hertz(),
-        (0.0, 0.02),
+        (0.0, 0.2),
         friction=di.Friction(mu),
         settings=di.SpanSettings(max_steps=max_steps),
     )
@@ -387,7 +387,7 @@ def test_span_checks_and_codes():
             0.04718, di.Material(200e9, 0.3), di.Material(205e9, 0.29), 0.05
         ),
         di.Hertz(),
-        (0.0, 0.02),
+        (0.0, 0.2),
         settings=di.SpanSettings(max_steps=8),
         throw=False,
     )

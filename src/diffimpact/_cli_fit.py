@@ -212,6 +212,7 @@ def plot_fit(result, path) -> None:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
     import numpy as np
+    from matplotlib.ticker import MaxNLocator
 
     nq = len(result.quantities)
     fig, axes = plt.subplots(2, nq, figsize=(3.6 * nq, 6.4), squeeze=False)
@@ -240,6 +241,7 @@ def plot_fit(result, path) -> None:
             xlabel="line in the data file",
             ylabel=f"(predicted - measured) / {weight}",
         )
+        ax.xaxis.set_major_locator(MaxNLocator(integer=True))
     fig.suptitle(
         ", ".join(
             f"{n} = {v:.4g} ± {s:.2g}"
