@@ -67,8 +67,9 @@ from _report import machine_line, markdown_table
 from scipy.integrate import solve_ivp
 
 import diffimpact as di
+from diffimpact._binding import _bind
+from diffimpact._normal_solve import _y0
 from diffimpact._planar_solve import _Planar, _planar_field, _separation, planar_setup
-from diffimpact._simulate import _bind, _y0
 from diffimpact.scenes._base import NormalProblem
 
 jax.config.update("jax_enable_x64", True)  # diffimpact is validated in float64
@@ -625,7 +626,7 @@ def fmt_times(times: Sequence[float], base: Sequence[float] | None = None) -> li
 
 
 def normal_state_size(problem: NormalProblem, law) -> int:
-    """Size of the smooth 1-DOF state (``_simulate._y0``)."""
+    """Size of the smooth 1-DOF state (``_normal_solve._y0``)."""
     return int(_y0(_bind(law, problem), jnp.float64, smooth=True).shape[0])
 
 

@@ -9,7 +9,7 @@ import pytest
 from conftest import rel
 
 import diffimpact as di
-from diffimpact import _simulate
+from diffimpact import _normal_solve
 
 BALL = di.Material(208e9, 0.3, 2e9)
 PRISM = di.Material(205e9, 0.29, 2e9)
@@ -63,13 +63,13 @@ def test_frictionless_is_the_normal_impact(monkeypatch):
     """Without friction the scene solves its 1-DOF normal problem, exactly the
     NormalImpact answer, and the compiled solve carries no tangential state."""
     sizes = []
-    original = _simulate._solve
+    original = _normal_solve._solve
 
     def recording(field, y0, *args, **kw):
         sizes.append(y0.shape[0])
         return original(field, y0, *args, **kw)
 
-    monkeypatch.setattr(_simulate, "_solve", recording)
+    monkeypatch.setattr(_normal_solve, "_solve", recording)
     law = di.JacksonGreen()
     sc = scene(30.0)
     phi = math.radians(30.0)

@@ -18,16 +18,15 @@ import jax.numpy as jnp
 from ._checks import require, require_positive
 from ._laws._dissipative import BoundDampedHertz
 from ._materials import ContactProperties
+from ._normal_solve import _solve_smooth
 from ._root import newton_root
 from ._solver import SolverSettings
+from .scenes._base import NormalProblem
 
 _SETTINGS = SolverSettings(rtol=1e-12, atol=1e-14)
 
 
 def _cor(zeta, exponent):
-    from ._simulate import _solve_smooth
-    from .scenes._base import NormalProblem
-
     one = jnp.ones_like(zeta)
     # Unit mass, speed and stiffness (E* = 3/4, R = 1 gives K = 1).
     problem = NormalProblem(

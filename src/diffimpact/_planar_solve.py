@@ -29,17 +29,17 @@ import equinox as eqx
 import jax
 import jax.numpy as jnp
 
+from ._binding import within_model
 from ._laws._friction import _HOLD_CORNER, _SPRING_CORNER, _ratio, _saturate
-from ._result import ImpactResult, first_failure
-from ._simulate import (
+from ._normal_solve import (
     _event_time,
     _peak_rate,
     _scales,
     _smooth_force,
     _solve,
     result_fields,
-    within_model,
 )
+from ._result import ImpactResult, first_failure
 from ._smooth import safe_sqrt, step
 from .scenes._base import NormalProblem
 

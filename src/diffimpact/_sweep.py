@@ -38,6 +38,12 @@ import jax.numpy as jnp
 import numpy as np
 from jax.sharding import Mesh, NamedSharding, PartitionSpec
 
+from ._laws._jackson_green import JacksonGreen
+from ._materials import Material
+from ._simulate import simulate
+from ._solver import SolverSettings
+from .scenes import NormalImpact
+
 # Rows per device in a chunk by default.  On CPU, small chunks are faster:
 # the quadrature's per-row temporaries (32 x 16 Gauss nodes, ~25 kB a row)
 # then stay in cache.  Measured with benchmarks/bench_sweep.py (JG,
@@ -458,9 +464,6 @@ def _normal_params(params: Mapping[str, Any]) -> dict[str, Any]:
 
 
 def _normal_scene(params: Mapping[str, Any]):
-    from ._materials import Material
-    from .scenes import NormalImpact
-
     p = {**NORMAL_DEFAULTS, **_normal_params(params)}
     if "mass" not in p:
         p["mass"] = 4.0 / 3.0 * jnp.pi * p["radius"] ** 3 * p["density"]
@@ -520,10 +523,6 @@ def normal_impact(
     for other laws, ``functools.partial(normal_impact, law=di.Hertz())``;
     :func:`check_normal_inputs` validates the columns first.
     """
-    from ._laws._jackson_green import JacksonGreen
-    from ._simulate import simulate
-    from ._solver import SolverSettings
-
     scene = _normal_scene(params)
     res = simulate(
         scene,
