@@ -3,8 +3,24 @@ configuration to its host program, so the test suite (the host here) enables
 it before any array exists."""
 
 import math
+import os
+import pathlib
 
-import jax
+# One persistent compilation cache for the whole run: the two xdist workers
+# and every subprocess (notebooks, CLI runs) load a program another has
+# compiled instead of compiling it again (the same ball-prism fit, say, is
+# compiled by four tests).  It lives in the ignored .pytest_cache, so a fresh
+# clone starts cold; set JAX_COMPILATION_CACHE_DIR to put it elsewhere.
+os.environ.setdefault(
+    "JAX_COMPILATION_CACHE_DIR",
+    str(pathlib.Path(__file__).parent.parent / ".pytest_cache" / "jax"),
+)
+os.environ.setdefault("JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS", "0")
+# The command line's own cache (diffimpact._cli.use_compilation_cache): the
+# same folder, never the user's home.
+os.environ.setdefault("DIFFIMPACT_CACHE_DIR", os.environ["JAX_COMPILATION_CACHE_DIR"])
+
+import jax  # noqa: E402
 
 jax.config.update("jax_enable_x64", True)
 

@@ -35,3 +35,16 @@ def test_quick_start_runs(monkeypatch, capsys):
     s_y, mu = namespace["fit"].values
     assert abs(s_y / 546e6 - 1) < 0.01 and abs(mu / 0.121 - 1) < 0.01
     assert "yield_strength" in capsys.readouterr().out
+
+
+def test_failed_impacts_block_runs(capsys):
+    """The README's example of throw=False, as written."""
+    text = (ROOT / "README.md").read_text()
+    section = text.split("## Precision, bad input and failed impacts", 1)[1]
+    section = re.split(r"^## ", section, maxsplit=1, flags=re.M)[0]
+    blocks = re.findall(r"^```python\n(.*?)^```", section, flags=re.M | re.S)
+    assert blocks
+    namespace = {"__name__": "__main__"}
+    exec(compile(blocks[0], "README.md (failed impacts)", "exec"), namespace)
+    out = capsys.readouterr().out
+    assert "['successful', 'outside_model', 'successful']" in out

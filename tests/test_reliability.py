@@ -473,3 +473,14 @@ def test_every_constructor_eagerly_and_traced(build, good, bad, message):
         jax.block_until_ready(jax.jit(checked)(bad))
     with pytest.raises(Exception, match=pattern):
         jax.vmap(checked)(jnp.array([good, bad]))
+
+
+def test_options_that_would_be_ignored_are_refused():
+    head_on = _soft_sphere(0.1)
+    with pytest.raises(ValueError, match="head-on impact"):
+        di.simulate(head_on, di.Hertz(), friction=di.Friction(0.2))
+    with pytest.raises(TypeError, match="friction"):
+        di.simulate(head_on, di.Hertz(), friction=0.2)
+    incline = di.scenes.SphereOnIncline(M, R, _steel(), _steel(), 0.5, 0.1)
+    with pytest.raises(ValueError, match="n_history"):
+        di.simulate(incline, di.Hertz(), friction=di.Friction(0.2), n_history=10)

@@ -9,6 +9,7 @@ import argparse
 import dataclasses
 import logging
 import math
+import os
 import sys
 import time
 
@@ -393,8 +394,10 @@ def run_command(func, args) -> int:
     non-zero exit status, never a traceback."""
     import jax
 
-    # The CLI is a program of its own: it may choose float64 for itself.
+    # The CLI is a program of its own: it may choose float64 for itself, and
+    # keep compiled programs between runs.
     jax.config.update("jax_enable_x64", True)
+    use_compilation_cache()
     # A check that fires inside a compiled solve raises through a JAX
     # callback, which also logs the Python traceback: the message below is
     # what the user needs.
@@ -410,6 +413,36 @@ def run_command(func, args) -> int:
     except Exception as err:  # a failed solve or fit: say what, not where
         print(f"error: {_message(err)}", file=sys.stderr)
         return 1
+
+
+def compilation_cache_dir() -> str | None:
+    """Where the command line keeps compiled programs between runs:
+    ``$DIFFIMPACT_CACHE_DIR``, else ``$XDG_CACHE_HOME/diffimpact/jax`` (by
+    default ``~/.cache/diffimpact/jax``); None when ``DIFFIMPACT_NO_CACHE=1``."""
+    if os.environ.get("DIFFIMPACT_NO_CACHE", "") not in ("", "0"):
+        return None
+    path = os.environ.get("DIFFIMPACT_CACHE_DIR")
+    if not path:
+        base = os.environ.get("XDG_CACHE_HOME") or os.path.join(
+            os.path.expanduser("~"), ".cache"
+        )
+        path = os.path.join(base, "diffimpact", "jax")
+    return path
+
+
+def use_compilation_cache() -> str | None:
+    """Turn on JAX's persistent compilation cache at
+    :func:`compilation_cache_dir` (every program, however quick to compile:
+    a cold run compiles dozens); returns the folder, or None."""
+    import jax
+
+    path = compilation_cache_dir()
+    if path is None:
+        return None
+    jax.config.update("jax_compilation_cache_dir", path)
+    jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.0)
+    jax.config.update("jax_persistent_cache_min_entry_size_bytes", 0)
+    return path
 
 
 def _message(err: BaseException) -> str:

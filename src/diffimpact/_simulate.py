@@ -16,6 +16,7 @@ import jax.numpy as jnp
 from ._binding import within_model
 from ._checks import guard, is_traced
 from ._laws._base import AbstractNormalLaw
+from ._laws._friction import Friction
 from ._normal_solve import _assemble, _solve_events, _solve_smooth
 from ._planar_solve import solve_planar
 from ._quadrature import solve_quadrature
@@ -140,8 +141,29 @@ def simulate(
         raise ValueError(
             "`n_history` must be >= 0, and histories come from method='smooth'"
         )
+    if friction is not None and not isinstance(friction, Friction):
+        raise TypeError(
+            f"`friction` must be None or a diffimpact.Friction, got "
+            f"{type(friction).__name__}"
+        )
+    planar = isinstance(scene, AbstractPlanarScene)
+    if friction is not None and not planar:
+        raise ValueError(
+            f"`friction` acts on tangential motion, which {type(scene).__name__} "
+            "(a head-on impact) does not have; use a planar scene such as "
+            "scenes.SphereOnIncline"
+        )
     if friction is not None and method != "smooth":
         raise ValueError("friction is solved by method='smooth' only")
+    if (
+        n_history > 0
+        and planar
+        and (friction is not None or not scene.normal_decouples)
+    ):
+        raise ValueError(
+            "`n_history` gives the history of a 1-DOF impact; this planar solve "
+            "has none (use n_history=0)"
+        )
     if (
         isinstance(scene, AbstractPlanarScene)
         and not scene.normal_decouples
