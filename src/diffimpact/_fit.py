@@ -330,11 +330,16 @@ def fit(
     # diffrax differentiates a solve in forward mode only with ForwardMode.
     # The optax minimisers take gradients of a scalar loss: reverse mode.
     forward = _with_adjoint(problem, diffrax.ForwardMode())
+    t0 = time.perf_counter()
+    bar = _Progress(max_steps, solver) if progress else None
+    if bar:  # from the first second: compiling takes most of a first run
+        bar.message(
+            f"compiling the model for {len(free)} parameter(s) and "
+            f"{int(problem.mask.sum())} measurements..."
+        )
     # Every row must be predictable at the start: name the ones that are not
     # before minutes of iterations.
     _check_predictions(forward, u0, data, "at the start values")
-    t0 = time.perf_counter()
-    bar = _Progress(max_steps, solver) if progress else None
     if solver in ("levenberg-marquardt", "gauss-newton"):
         u, steps, converged = _least_squares(
             forward, u0, solver, max_steps, rtol, atol, bar
@@ -345,6 +350,7 @@ def fit(
         )
     if bar:
         bar.close()
+        bar.message("covariance and residuals at the fitted values...", end="\n")
     _check_predictions(forward, u, data, "at the fitted values")
     return _result(
         forward,
@@ -628,16 +634,27 @@ class _Progress:
     def __init__(self, total, label, width=30):
         self.total, self.label, self.width = total, label, width
         self.t0 = time.perf_counter()
+        self.shown = 0  # length of the line on screen, to overwrite it whole
+
+    def _write(self, line: str, end: str = ""):
+        sys.stderr.write("\r" + line.ljust(self.shown) + end)
+        sys.stderr.flush()
+        self.shown = 0 if end else len(line)
 
     def update(self, k, cost):
         filled = int(self.width * min(k, self.total) / self.total)
         bar = "#" * filled + "." * (self.width - filled)
         dt = time.perf_counter() - self.t0
-        sys.stderr.write(
-            f"\r{self.label} [{bar}] step {k}/{self.total} cost {cost:.4g} ({dt:.1f} s)"
+        self._write(
+            f"{self.label} [{bar}] step {k}/{self.total} cost {cost:.4g} ({dt:.1f} s)"
         )
-        sys.stderr.flush()
 
     def close(self):
-        sys.stderr.write("\n")
+        sys.stderr.write("\n")  # keep the last bar on screen
         sys.stderr.flush()
+        self.shown = 0
+
+    def message(self, text: str, end: str = ""):
+        """A status line (what is happening before or after the steps)."""
+        dt = time.perf_counter() - self.t0
+        self._write(f"{self.label}: {text} ({dt:.1f} s)", end)
