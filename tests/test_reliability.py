@@ -484,3 +484,13 @@ def test_options_that_would_be_ignored_are_refused():
     incline = di.scenes.SphereOnIncline(M, R, _steel(), _steel(), 0.5, 0.1)
     with pytest.raises(ValueError, match="n_history"):
         di.simulate(incline, di.Hertz(), friction=di.Friction(0.2), n_history=10)
+
+
+def test_shapes_and_types_are_named():
+    batched = di.Material(np.array([2e11, 1e11]), 0.3)
+    scene = di.scenes.NormalImpact(M, R, batched, _steel(), 1.0)
+    with pytest.raises(ValueError, match=r"`scene\.body\.youngs_modulus` has shape"):
+        di.simulate(scene, di.Hertz(), "quadrature")
+    for bad in (None, "abc", 2e11 + 1j):
+        with pytest.raises(TypeError, match="expected a real number"):
+            di.Material(bad, 0.3)

@@ -36,11 +36,32 @@ class Check(NamedTuple):
 
 
 def as_float(x):
-    """Convert a number or array to an inexact JAX array (ints become floats)."""
-    x = jnp.asarray(x)
-    if not jnp.issubdtype(x.dtype, jnp.inexact):
-        x = x.astype(jnp.result_type(float))
-    return x
+    """Convert a real number or array to a floating JAX array (ints become
+    floats); anything else (None, text, a complex number) is a ``TypeError``."""
+    try:
+        a = jnp.asarray(x)
+    except (TypeError, ValueError):
+        raise TypeError(
+            f"expected a real number (or array of them), got {x!r} ({type(x).__name__})"
+        ) from None
+    if jnp.issubdtype(a.dtype, jnp.complexfloating) or a.dtype == jnp.bool_:
+        raise TypeError(f"expected a real number, got {x!r} ({a.dtype})")
+    if not jnp.issubdtype(a.dtype, jnp.inexact):
+        a = a.astype(jnp.result_type(float))
+    return a
+
+
+def require_scalars(tree, what: str) -> None:
+    """Every floating-point number of ``tree`` is a scalar: a solve is one
+    impact (batches go through ``jax.vmap``, whose tracers are scalars here).
+    Raises ``ValueError`` naming the field and its shape."""
+    for path, leaf in jax.tree_util.tree_flatten_with_path(tree)[0]:
+        if eqx.is_inexact_array(leaf) and leaf.ndim != 0:
+            name = what + jax.tree_util.keystr(path)
+            raise ValueError(
+                f"`{name}` has shape {tuple(leaf.shape)}; one solve is one "
+                "impact: give scalars, and use jax.vmap for a batch"
+            )
 
 
 def _is_traced(x) -> bool:

@@ -61,7 +61,14 @@ import jax.numpy as jnp
 import optimistix as optx
 from jaxtyping import Array
 
-from ._checks import as_float, guard, is_traced, require, require_finite
+from ._checks import (
+    as_float,
+    guard,
+    is_traced,
+    require,
+    require_finite,
+    require_scalars,
+)
 from ._laws._base import AbstractNormalLaw
 from ._laws._dissipative import _AbstractDampedHertz
 from ._laws._friction import Friction
@@ -938,6 +945,8 @@ def simulate_span(
     )
     t_span = (t0, t1)
     # As in `simulate`: eagerly a ValueError, traced a threaded check.
+    for name, part in (("scene", scene), ("law", law), ("friction", friction)):
+        require_scalars(part, name)
     scene, law, friction = guard((scene, law, friction))
     traced = is_traced((scene, law, friction, t_span))
     res = _simulate_span(

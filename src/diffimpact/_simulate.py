@@ -14,7 +14,7 @@ import jax
 import jax.numpy as jnp
 
 from ._binding import within_model
-from ._checks import guard, is_traced
+from ._checks import guard, is_traced, require_scalars
 from ._laws._base import AbstractNormalLaw
 from ._laws._friction import Friction
 from ._normal_solve import _assemble, _solve_events, _solve_smooth
@@ -181,6 +181,8 @@ def simulate(
     # Every check of the inputs: eagerly a ValueError naming the field, before
     # any solve; traced, threaded through the inputs, so it runs first and
     # cannot be dropped (see `_checks.guard`).
+    for name, part in (("scene", scene), ("law", law), ("friction", friction)):
+        require_scalars(part, name)
     scene, law, friction = guard((scene, law, friction))
     traced = is_traced((scene, law, friction))
     res = _simulate(scene, law, method, settings, n_history, friction, throw and traced)
