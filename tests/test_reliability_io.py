@@ -390,3 +390,96 @@ def test_cli_second_run_compiles_nothing(tmp_path):
     env["DIFFIMPACT_CACHE_DIR"] = str(tmp_path / "off")
     subprocess.run(argv, env={**env, "DIFFIMPACT_NO_CACHE": "1"}, check=True)
     assert not (tmp_path / "off").exists()
+
+
+@pytest.mark.parametrize(
+    "argv, message",
+    [
+        (
+            ["simulate", "--set", "yield_strength=1e8", "--flat-yield", "2e8"],
+            "both set scene.flat.yield_strength",
+        ),
+        (["simulate", "--mass", "0.002", "--input", "mass_g=1"], "both set scene.mass"),
+        (
+            [
+                "simulate",
+                "--input",
+                "impact_velocity_m_s=2",
+                "--input",
+                "impact_velocity_mm_s=3000",
+            ],
+            "both set scene.velocity",
+        ),
+        (["simulate", "--radius", "0"], "--radius must be a number > 0"),
+        (["simulate", "--density", "0"], "Material.density"),
+        (["sweep", "--velocity", "1", "--seed", "3", "--out", "x"], "--seed applies"),
+        (
+            ["fit", "data/ball_prism.csv", "--free", "mu", "--max-steps", "0"],
+            "--max-steps",
+        ),
+        (
+            [
+                "fit",
+                "data/ball_prism.csv",
+                "--free",
+                "poisson_ratio",
+                "--bounds",
+                "poisson_ratio=0.1:0.7",
+            ],
+            "reach outside its domain",
+        ),
+    ],
+)
+def test_cli_refuses_conflicts(capsys, monkeypatch, argv, message):
+    monkeypatch.chdir(ROOT)
+    code, _, err = _cli(capsys, *argv)
+    assert code == 2 and message in err, err
+    assert len(err.strip().splitlines()) == 1
+
+
+def test_cli_shows_the_message_of_a_check_inside_a_compiled_fit():
+    """equinox wraps a traced check's message in its stack report: the CLI
+    shows the message."""
+    from diffimpact._cli import _message
+
+    text = (
+        "Above is the stack outside of JIT. Below is the stack inside of JIT:\n"
+        '  File "x.py", line 3\n\n'
+        "`Material.poisson_ratio` must lie in the open interval (-1, 0.5)\n"
+        "-------\nThis error occurred during the runtime of your JAX program.\n"
+    )
+    assert _message(RuntimeError(text)).startswith("`Material.poisson_ratio`")
+
+
+def test_fit_refuses_an_undefined_prediction(tmp_path):
+    """A tangential COR measured at 0 deg (no tangential approach) names the
+    line instead of iterating on NaN."""
+    p = tmp_path / "zero.csv"
+    p.write_text(
+        "scene,drop_height_m,angle_deg,cor_normal,cor_tangential\n"
+        "sphere_on_incline,0.3,30,0.5,0.7\nsphere_on_incline,0.3,0,0.45,0.9\n"
+    )
+    with pytest.raises(ValueError, match="line 3: the model's cor_tangential"):
+        di.fit(p, free="mu")
+
+
+def test_unphysical_results_are_a_code():
+    import jax.numpy as jnp
+
+    from diffimpact._simulate import _physical
+
+    def out(cor, d_r):
+        return {
+            "cor_newton": jnp.asarray(cor),
+            "max_deflection": jnp.asarray(1e-5),
+            "permanent_deformation": jnp.asarray(d_r),
+        }
+
+    assert _physical(out(0.5, 5e-6)) == di.RESULTS.successful
+    assert _physical(out(1.0 + 1e-9, 0.0)) == di.RESULTS.successful
+    for bad in (out(1.5, 5e-6), out(0.5, -1e-6), out(0.5, 2e-5)):
+        assert _physical(bad) == di.RESULTS.unphysical
+    with pytest.raises(ValueError, match="JacksonGreen.ep_decay"):
+        di.JacksonGreen(ep_decay=-5.0)
+    with pytest.raises(ValueError, match="quadrature_order"):
+        di.SolverSettings(quadrature_order=4)

@@ -12,6 +12,7 @@ import math
 import os
 import sys
 import time
+import warnings
 
 _LAWS = ("jackson-green", "hertz", "hunt-crossley", "lankarani-nikravesh", "flores")
 
@@ -131,6 +132,7 @@ _MATERIAL_FLAGS = (
     ("poisson", "poisson_ratio"),
     ("yield", "yield_strength"),
 )
+_MATERIAL_FLAGS_BY_FIELD = [(field, flag) for flag, field in _MATERIAL_FLAGS]
 
 
 def _material_flags(args) -> dict:
@@ -159,11 +161,14 @@ def _normal_experiment(args):
     for who, defaults in _BODY_DEFAULTS.items():
         values = [getattr(args, f"{who}_{flag}") for flag, _ in _MATERIAL_FLAGS]
         values = [d if v is None else v for v, d in zip(values, defaults, strict=True)]
-        mats[who] = di.Material(*values, density=args.density or 7850.0)
+        density = 7850.0 if args.density is None else args.density
+        mats[who] = di.Material(*values, density=density)
     radius = 5e-3 if args.radius is None else args.radius
+    if not radius > 0:  # before the mass is derived from it
+        raise ValueError(f"--radius must be a number > 0 in m, got {radius}")
     mass = args.mass
     if mass is None:
-        mass = 4.0 / 3.0 * math.pi * radius**3 * (args.density or 7850.0)
+        mass = 4.0 / 3.0 * math.pi * radius**3 * density
     elif args.density is not None:
         raise ValueError("--density sets the mass from the radius; give it or --mass")
     scene = di.scenes.NormalImpact(
@@ -246,7 +251,12 @@ def simulate_cmd(args) -> int:
     from diffimpact._checks import guard
     from diffimpact._cli_fit import _number, _pairs
     from diffimpact._data import parse_column
-    from diffimpact._observables import scene_spec, set_parameters, with_inputs
+    from diffimpact._observables import (
+        resolve_parameter,
+        scene_spec,
+        set_parameters,
+        with_inputs,
+    )
 
     if args.cor is not None and args.law in (None, "jackson-green", "hertz"):
         raise ValueError(
@@ -257,7 +267,25 @@ def simulate_cmd(args) -> int:
         experiment = _normal_experiment(args)
     else:
         experiment = _scene_experiment(args)
+    # Every value may be given once, by whichever flag: a second one would
+    # silently win or lose.
+    given = {}
+
+    def claim(path, how):
+        if path in given:
+            raise ValueError(f"{given[path]} and {how} both set {path}; give it once")
+        given[path] = how
+
+    for path in _material_flags(args):
+        who, _, field = path.partition(".")[2].partition(".")
+        flag = dict(_MATERIAL_FLAGS_BY_FIELD)[field]
+        claim(path, f"--{who}-{flag}")
+    for name in ("velocity", "mass", "radius", "gravity"):
+        if getattr(args, name) is not None:
+            claim(f"scene.{name}", f"--{name}")
     fixed = {k: _number(v, "set") for k, v in _pairs(args.set, "set").items()}
+    for name in fixed:
+        claim(resolve_parameter(experiment, name), f"--set {name}")
     experiment = set_parameters(experiment, fixed)
     spec = scene_spec(args.scene)
     inputs = {}
@@ -268,8 +296,7 @@ def simulate_cmd(args) -> int:
                 f"--input {header}: scene {args.scene} takes "
                 f"{sorted(spec.inputs)} (with units, e.g. angle_deg=30)"
             )
-        if col.quantity == "impact_velocity" and args.velocity is not None:
-            raise ValueError("give the approach speed once: --velocity or --input")
+        claim(f"scene.{spec.inputs[col.quantity]}", f"--input {header}")
         inputs[col.quantity] = _number(value, "input") * col.factor
     # Inputs not given keep the scene's values; the scene's checks run on
     # the result before any solve (ValueError naming the field).
@@ -402,6 +429,8 @@ def run_command(func, args) -> int:
     # callback, which also logs the Python traceback: the message below is
     # what the user needs.
     logging.getLogger("jax._src.callback").setLevel(logging.CRITICAL)
+    # The fit's summary prints its identifiability notes itself.
+    warnings.simplefilter("ignore", UserWarning)
     try:
         return func(args)
     except (ValueError, TypeError, FileExistsError) as err:  # bad input
@@ -453,6 +482,11 @@ def _message(err: BaseException) -> str:
     if marker in text:
         text = text.split(marker, 1)[1]
     lines = [line.strip() for line in text.strip().splitlines() if line.strip()]
+    # Every diffimpact message starts with the field (`...`) or "diffimpact:";
+    # equinox puts its stack report around it.
+    ours = [x for x in lines if x.startswith(("`", "diffimpact:"))]
+    if ours:
+        return ours[0]
     return lines[0] if lines else type(err).__name__
 
 

@@ -98,12 +98,18 @@ def run(args) -> int:
             f"--out {out}: is a file, not a folder; give a folder for "
             f"{', '.join(_OUTPUT_FILES)}"
         )
+    if args.max_steps < 1:
+        raise ValueError(f"--max-steps must be an integer >= 1, got {args.max_steps}")
     existing = [f for f in _OUTPUT_FILES if os.path.exists(os.path.join(out, f))]
     if existing and not args.force:
         raise ValueError(
             f"{out}: would overwrite {', '.join(existing)}; pass --force or choose "
             "another --out"
         )
+    try:  # the folder exists and can be written, before minutes of fitting
+        os.makedirs(out, exist_ok=True)
+    except OSError as err:
+        raise ValueError(f"--out {out}: cannot be created ({err.strerror})") from None
     data = di.load_experiments(args.data)
     scene = args.scene or data.scene
     if scene is None:

@@ -100,7 +100,9 @@ def register(subparsers) -> argparse.ArgumentParser:
         metavar="N",
         help="draw N random rows from the ranges instead of a grid",
     )
-    p.add_argument("--seed", type=int, default=0, help="random seed for --sample")
+    p.add_argument(
+        "--seed", type=int, default=None, help="random seed for --sample (default 0)"
+    )
     p.add_argument(
         "--chunk-size",
         type=int,
@@ -177,6 +179,10 @@ def _build_inputs(args):
     from ._sweep import grid, sample
 
     sampling = args.sample is not None
+    if args.seed is not None and not sampling:
+        raise ValueError("--seed applies with --sample only")
+    if args.mass is not None and args.density is not None:
+        raise ValueError("--density sets the mass from the radius; give it or --mass")
     if sampling and args.sample < 1:
         raise ValueError(f"--sample: N must be >= 1, got {args.sample}")
     fixed, axes, ranges, log = {}, {}, {}, {}
@@ -195,7 +201,7 @@ def _build_inputs(args):
     if sampling:
         if not ranges:
             raise ValueError("--sample needs a range, e.g. --velocity 0.1:10")
-        inputs = sample(args.seed, args.sample, **ranges)
+        inputs = sample(args.seed or 0, args.sample, **ranges)
         swept, shape = list(ranges), None
     else:
         # A sweep with no axis is one impact (all values fixed): still a grid.
@@ -390,6 +396,7 @@ def _run(args) -> int:
     _plot(paths[1], inputs, outputs, swept, log, shape, args.law, args.force)
 
     defaults = {k: v for k, v in NORMAL_DEFAULTS.items() if k not in inputs}
+    seed = args.seed or 0
     cor = outputs["cor_newton"]
     codes = outputs["result"]
     failed = codes != 0
@@ -403,7 +410,7 @@ def _run(args) -> int:
         f"diffimpact sweep: {n:,} {args.law} normal impacts (quadrature) on "
         f"{len(jax.devices())} device(s), chunks of {min(chunk, n):,}\n"
         f"  swept: {', '.join(swept) or 'nothing (one impact)'}"
-        + (f" ({args.sample:,} random rows, seed {args.seed})" if args.sample else "")
+        + (f" ({args.sample:,} random rows, seed {seed})" if args.sample else "")
         + "\n  defaults: "
         + ", ".join(f"{k}={v:g}" for k, v in defaults.items())
         + ("" if "mass" in inputs else ", mass=4/3 pi radius^3 density")

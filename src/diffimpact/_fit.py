@@ -44,6 +44,7 @@ from ._observables import (
     resolve_parameter,
     row_label,
     scene_spec,
+    set_parameters,
 )
 from ._result import RESULTS, result_name
 from ._transforms import make_transform
@@ -311,6 +312,7 @@ def fit(
         make_transform(n, x, bounds.get(n, _DOMAINS.get(p.rpartition(".")[2])))
         for n, x, p in zip(free, x0, paths, strict=True)
     )
+    _check_bounds(experiment, free, transforms)
 
     quantities, measured, sigma, mask, absolute = _targets(data, outputs, experiment)
     problem = _Problem(
@@ -365,10 +367,41 @@ def fit(
     )
 
 
+def _check_bounds(experiment, free, transforms) -> None:
+    """Bounds that let a parameter leave its domain (a Poisson ratio up to
+    0.7, a negative yield strength) are refused before the fit, naming the
+    parameter, by the model's own checks at values just inside them."""
+    for name, t in zip(free, transforms, strict=True):
+        for edge in (t.lower, t.upper):
+            if not math.isfinite(edge):
+                continue
+            inside = edge + (1e-9 if edge == t.lower else -1e-9) * max(abs(edge), 1.0)
+            try:
+                set_parameters(experiment, {name: inside})
+            except ValueError as err:
+                raise ValueError(
+                    f"bounds of {name!r} reach outside its domain: {err}"
+                ) from None
+
+
 def _check_predictions(problem: _Problem, u, data, when: str) -> None:
-    _, codes = eqx.filter_jit(problem.predictions)(u)
+    pred, codes = eqx.filter_jit(problem.predictions)(u)
     codes = np.asarray(codes)
-    failed = np.nonzero(codes != int(RESULTS.successful._value))[0]
+    # A prediction that is not finite where a measurement is fitted (say a
+    # tangential COR at 0 deg, with no tangential approach) fails its row too.
+    mask = np.asarray(problem.mask)
+    undefined = np.any(mask & ~np.isfinite(np.asarray(pred)), axis=1)
+    ok = int(RESULTS.successful._value)
+    if np.any(undefined & (codes == ok)):
+        i = int(np.argmax(undefined & (codes == ok)))
+        k = int(np.argmax(mask[i] & ~np.isfinite(np.asarray(pred)[i])))
+        raise ValueError(
+            f"{data.path}, {row_label(data.lines, i)}: the model's "
+            f"{problem.quantities[k]} is not defined there (not finite, e.g. a "
+            "tangential COR without tangential approach); remove the value or "
+            "the row"
+        )
+    failed = np.nonzero(codes != ok)[0]
     if failed.size == 0:
         return
     values = ", ".join(

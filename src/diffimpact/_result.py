@@ -49,6 +49,11 @@ class RESULTS(eqx.Enumeration):
         "diffimpact: the ODE solve failed (step size underflow or a non-finite "
         "state); check the inputs, or loosen the settings' rtol/atol"
     )
+    unphysical = (
+        "diffimpact: the impact came out unphysical (a head-on rebound faster "
+        "than the approach, or a permanent deformation outside [0, d_max]); "
+        "check the law's constants and the SolverSettings"
+    )
     precision_lost = (
         "diffimpact: float32 lost the quadrature's precision (a non-finite "
         "output); enable float64 with jax.config.update('jax_enable_x64', True) "
@@ -88,6 +93,7 @@ _ERRORS = {
     "max_steps_reached": StepBudgetError,
     "solver_failed": SolverError,
     "precision_lost": SolverError,
+    "unphysical": SimulationError,
 }
 
 

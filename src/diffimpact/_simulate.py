@@ -83,10 +83,27 @@ def _simulate(scene, law, method, settings, n_history, friction, throw):
         raw = _quadrature(problem, bound, settings)
     result = first_failure(inside, raw.pop("result"))
     out = _assemble(problem, bound, raw)
+    result = first_failure(result, _physical(out))
     extras = scene.extras(out["rebound_velocity"])
     if isinstance(scene, AbstractPlanarScene):
         extras = {**extras, **scene.frictionless_report(out["contact_time"])}
     return finish(ImpactResult(**out, extras=extras, result=result), result, throw)
+
+
+def _physical(out):
+    """``unphysical`` for a head-on impact that returns more speed than it
+    came with, or a dent outside ``[0, d_max]``: no passive contact does
+    that, so constants far outside their sources' ranges (a negative decay
+    in JG-5, say) or an unconverged quadrature are reported, not returned.
+    The slack covers float32 (about 5e-4 at worst)."""
+    d_m, d_r = out["max_deflection"], out["permanent_deformation"]
+    tol = 1e-3 if d_m.dtype == jnp.float32 else 1e-6
+    ok = (
+        (out["cor_newton"] <= 1.0 + tol)
+        & (d_r >= -tol * d_m)
+        & (d_r <= (1.0 + tol) * d_m)
+    )
+    return RESULTS.where(ok, RESULTS.successful, RESULTS.unphysical)
 
 
 def simulate(

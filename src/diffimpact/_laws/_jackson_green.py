@@ -89,6 +89,18 @@ class JacksonGreen(AbstractNormalLaw):
                 "`JacksonGreen.dr_a` must lie in [0, 1) (d_r < d_m, JG-8)",
             )
         )
+        # JG-5's exponential is a decay; JG-8's base (d_m/d_y + dr_b)/dr_c
+        # stays positive for every plastic impact (d_m >= d_y) with dr_b > -1,
+        # and its power is a decay with dr_exponent > 0.
+        out += [
+            check(
+                self.ep_decay,
+                self.ep_decay >= 0,
+                "`JacksonGreen.ep_decay` must be >= 0 (a decay, JG-5)",
+            ),
+            check(self.dr_b, self.dr_b > -1, "`JacksonGreen.dr_b` must be > -1 (JG-8)"),
+            positive(self.dr_exponent, "JacksonGreen.dr_exponent"),
+        ]
         return out
 
     def __check_init__(self):
