@@ -95,9 +95,11 @@ def _physical(out):
     came with, or a dent outside ``[0, d_max]``: no passive contact does
     that, so constants far outside their sources' ranges (a negative decay
     in JG-5, say) or an unconverged quadrature are reported, not returned.
-    The slack covers float32 (about 5e-4 at worst)."""
+    The 1 % slack is far above the solvers' own errors at any sane setting
+    (float32 included; a loose rtol makes an elastic COR 1 + 1e-5), and far
+    below the nonsense it is there for (COR 1.5 to 13 in the cases found)."""
     d_m, d_r = out["max_deflection"], out["permanent_deformation"]
-    tol = 1e-3 if d_m.dtype == jnp.float32 else 1e-6
+    tol = 1e-2
     ok = (
         (out["cor_newton"] <= 1.0 + tol)
         & (d_r >= -tol * d_m)
