@@ -242,7 +242,8 @@ def _print_used(experiment) -> None:
         print("friction: none")
     else:
         f = experiment.friction
-        print(f"friction: mu = {float(f.mu):.6g}, mu_v = {float(f.mu_v):.6g} N s/m")
+        mu_v = 0.0 if f.mu_v is None else float(f.mu_v)
+        print(f"friction: mu = {float(f.mu):.6g}, mu_v = {mu_v:.6g} N s/m")
     print("(SI units: m, kg, s, Pa, rad)\n")
 
 
@@ -312,8 +313,14 @@ def simulate_cmd(args) -> int:
         results, _ = _simulate_all(experiment.scene, experiment.law, methods)
         print(_report(results))
         return 0
-    if args.method not in (None, "smooth"):
-        raise ValueError(f"--method: scene {args.scene} is solved by 'smooth' only")
+    if args.method in ("events", "all"):
+        raise ValueError(
+            f"--method {args.method} is for normal_impact; scene {args.scene} "
+            "takes 'smooth' (the ODE) or 'quadrature' (closed form: "
+            "sphere_on_incline with rigid friction)"
+        )
+    if args.method is not None:
+        experiment = dataclasses.replace(experiment, method=args.method)
     out = di.predict(experiment)
     rows = [[q, f"{float(v):.8g}"] for q, v in out.items()]
     print(_table(rows, ["output (SI)", "value"]))
@@ -384,7 +391,8 @@ def main(argv=None) -> int:
         "--method",
         choices=("smooth", "events", "quadrature", "all"),
         default=None,
-        help="solver (default smooth; 'all' compares the three, normal_impact)",
+        help="solver (default: smooth for normal_impact, else auto = the closed "
+        "form where it applies; 'all' compares the three, normal_impact)",
     )
     for who, (e, nu, sy) in _BODY_DEFAULTS.items():
         s.add_argument(

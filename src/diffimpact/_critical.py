@@ -41,7 +41,10 @@ _LEVEL_SLIDING = math.exp(-1.0)
 def _indicator(angle, dyn, static, settings, level):
     """Signed stick/slip indicator at ``angle``, in slip widths: > 0 slides."""
     make, law, friction = eqx.combine(dyn, static)
-    r = simulate(make(angle), law, friction=friction, settings=settings)
+    # The smooth solve's slip diagnostics, also for a sphere (whose default is
+    # the closed form, where a stuck contact's least slip is exactly 0 and the
+    # indicator has no sign change).
+    r = simulate(make(angle), law, "smooth", friction=friction, settings=settings)
     ex = r.extras
     approach = ex["tangential_velocity_contact_before"] != 0
     ratio = jnp.where(approach, ex["min_slip_ratio"], ex["final_slip_ratio"])

@@ -45,6 +45,7 @@ from ._observables import (
     row_label,
     scene_spec,
     set_parameters,
+    with_parameters,
 )
 from ._result import RESULTS, result_name
 from ._transforms import make_transform
@@ -304,6 +305,7 @@ def fit(
         if extra:
             raise ValueError(f"`{what}` names parameters that are not free: {extra}")
     paths = tuple(resolve_parameter(experiment, n) for n in free)
+    experiment = with_parameters(experiment, paths)
     x0 = [
         float(start.get(n, get_path(experiment, p)))
         for n, p in zip(free, paths, strict=True)

@@ -45,7 +45,7 @@ class Experiment(eqx.Module):
     scene: AbstractScene
     law: AbstractNormalLaw
     friction: Friction | None = None
-    method: str = eqx.field(static=True, default="smooth")
+    method: str = eqx.field(static=True, default="auto")
     settings: SolverSettings = eqx.field(
         static=True, default=SolverSettings(max_steps=16384)
     )
@@ -90,7 +90,7 @@ def _sphere_on_incline() -> Experiment:
     scene = SphereOnIncline(
         _BALL_MASS, _BALL_RADIUS, *_ball_and_prism(), math.radians(30.0), 0.29
     )
-    return Experiment(scene, JacksonGreen(), Friction(0.2, 0.0))
+    return Experiment(scene, JacksonGreen(), Friction(0.2))
 
 
 def _normal_impact() -> Experiment:
@@ -110,7 +110,7 @@ def _rotating_link() -> Experiment:
     steel = Material(207e9, 0.3, math.inf, _STEEL_DENSITY)
     flat = Material(207e9, 0.3, 400e6, _STEEL_DENSITY)
     scene = RotatingLink(mass, length, diameter, steel, flat, math.radians(30.0))
-    return Experiment(scene, JacksonGreen(), Friction(0.2, 0.0))
+    return Experiment(scene, JacksonGreen(), Friction(0.2))
 
 
 def _free_bar() -> Experiment:
@@ -119,7 +119,7 @@ def _free_bar() -> Experiment:
     bar = Material(200.83e9, 0.3, 230.63e6, 7850.0)
     flat = Material(205e9, 0.29, 355e6, 7850.0)
     scene = FreeBar(0.04718, bar, flat, 0.3)
-    return Experiment(scene, JacksonGreen(), Friction(0.2, 0.0))
+    return Experiment(scene, JacksonGreen(), Friction(0.2))
 
 
 _PLATE = {
@@ -223,6 +223,8 @@ def resolve_parameter(experiment: Experiment, name: str) -> str:
         value = get_path(experiment, path)
     except AttributeError:
         value = None
+    if value is None and path == "friction.mu_v" and experiment.friction is not None:
+        return path  # no viscous term yet: `with_parameters` adds one at 0
     if value is None or not eqx.is_inexact_array(value):
         known = sorted(spec.parameters) + sorted(_array_fields(experiment.law))
         extra = (
@@ -235,12 +237,27 @@ def resolve_parameter(experiment: Experiment, name: str) -> str:
     return path
 
 
+def with_parameters(experiment: Experiment, paths) -> Experiment:
+    """``experiment`` with every path of ``paths`` present as an array: a
+    friction without a viscous term (``mu_v=None``) gets ``mu_v = 0`` when
+    ``friction.mu_v`` is set or fitted."""
+    if "friction.mu_v" in paths and experiment.friction.mu_v is None:
+        experiment = eqx.tree_at(
+            lambda e: e.friction.mu_v,
+            experiment,
+            as_float(0.0),
+            is_leaf=lambda x: x is None,
+        )
+    return experiment
+
+
 def set_parameters(experiment: Experiment, values: dict) -> Experiment:
     """Return ``experiment`` with parameters set by name (names as in
     :func:`resolve_parameter`); values in SI units."""
     if not values:
         return experiment
     paths = [resolve_parameter(experiment, n) for n in values]
+    experiment = with_parameters(experiment, paths)
     new = eqx.tree_at(
         lambda e: [get_path(e, p) for p in paths],
         experiment,

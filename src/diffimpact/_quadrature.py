@@ -32,6 +32,7 @@ import numpy as np
 
 from ._result import RESULTS
 from ._root import newton_root
+from ._smooth import safe_sqrt
 
 # Chebyshev samples of the plastic force for its cumulative work from d to
 # d_m (see `solve_quadrature`).  Against the nested Gauss rule it replaced
@@ -86,7 +87,9 @@ def _travel_time(delta, potential_drop, m, order, s_lo=0.0, s_hi=1.0):
     return (s_hi - s_lo) * jnp.sum(jnp.asarray(w, dt) * 2.0 * delta * s / v)
 
 
-def solve_quadrature(problem, bound, settings):
+def normal_timeline(problem, bound, settings) -> Timeline:
+    """The normal impact solved by energy integrals (module docstring), as a
+    :class:`Timeline`: its totals, and the state at any point of the contact."""
     if bound.rate_dependent:
         raise ValueError(
             "method='quadrature' needs a law whose loading force depends on the "
@@ -185,7 +188,9 @@ def solve_quadrature(problem, bound, settings):
         t_pl, a, s_lo, w_top = 0.0, d_m, 0.0, 0.0
 
     def drop_el(s):  # s in [s_lo, 1], d = d_m (1 - s^2) in [0, a]
-        rel = d_m * (s_lo * s_lo - s * s) / a  # (d - a) / a, exact
+        # (d - a) / a, exact; >= -1 (d >= 0) also where rounding would pass it
+        # at s = 1 (the Gauss nodes stay inside)
+        rel = jnp.maximum(d_m * (s_lo * s_lo - s * s) / a, -1.0)
         w_diff = -k / (n + 1.0) * a ** (n + 1.0) * jnp.expm1((n + 1.0) * jnp.log1p(rel))
         return w_top + w_diff - m * g * d_m * s * s
 
@@ -215,11 +220,130 @@ def solve_quadrature(problem, bound, settings):
         )
 
     t_un = _travel_time(stroke, drop_un, m, order)
-    return dict(
-        contact_time=t_load + t_un,
-        compression_time=t_load,
-        rebound_velocity=v_out,
+    # Loading pieces (delta, drop, lo, hi, active): plastic on [0, s_s],
+    # elastic on [s_s, 1] (on [0, 1] when nothing yields).
+    elastic = (d_m, drop_el, s_lo, 1.0, True)
+    if two_phase:
+        pieces = ((d_m_pl, drop_pl, 0.0, s_s, plastic), elastic)
+        forces = (f_el, f_pl, d_s)
+    else:
+        pieces = (elastic,)
+        forces = (f_el, f_el, jnp.inf)
+    return Timeline(
+        mass=m,
+        approach_velocity=v0,
         max_deflection=d_m,
-        num_steps=jnp.zeros((), jnp.int32),
-        result=RESULTS.where(separates, RESULTS.successful, RESULTS.never_separates),
+        residual_deflection=d_r,
+        peak_force=f_m,
+        unloading_exponent=p,
+        compression_time=t_load,
+        restitution_time=t_un,
+        rebound_velocity=v_out,
+        separates=separates,
+        order=order,
+        pieces=pieces,
+        forces=forces,
+        drop_unloading=drop_un,
     )
+
+
+class Timeline:
+    """A normal impact solved by :func:`normal_timeline`, and its state along
+    the way (built and used inside one trace; not a pytree).
+
+    Loading is parametrised by ``s`` in ``[0, 1]``, ``d = d_m (1 - s^2)``
+    (``s = 1`` at first contact, 0 at maximum compression); restitution by
+    ``r`` in ``[0, 1]``, ``d = d_m - (d_m - d_r) r^2`` (0 at maximum
+    compression, 1 at separation).  Times are measured from first contact;
+    the normal velocity ``v_n`` is positive while approaching."""
+
+    def __init__(self, **fields):
+        self.__dict__.update(fields)
+
+    @property
+    def contact_time(self):
+        return self.compression_time + self.restitution_time
+
+    @property
+    def stroke(self):
+        return self.max_deflection - self.residual_deflection
+
+    def loading_time_left(self, s):
+        """Time from the loading point ``s`` to maximum compression, piece by
+        piece (each a smooth Gauss rule: the speed has a kink at the switch).
+        A piece not reached (``s <= lo``) is evaluated over its full span and
+        masked, so that no Gauss rule sits on the singular ``v = 0`` point."""
+        total = 0.0
+        for delta, drop, lo, hi, active in self.pieces:
+            reached = s - lo > 1e-12
+            end = jnp.where(reached, jnp.minimum(s, hi), hi)
+            t = _travel_time(delta, drop, self.mass, self.order, lo, end)
+            total = total + jnp.where(reached & active, t, 0.0)
+        return total
+
+    def loading_velocity(self, s):
+        """``v_n`` (> 0) at the loading point ``s`` (at ``s = 1`` exactly
+        ``v0``, where the potential's log form has no derivative)."""
+        start = s > 1.0 - 1e-12
+        drop = self.drop_at(jnp.where(start, 0.5, s))
+        return jnp.where(
+            start, self.approach_velocity, safe_sqrt(2.0 * drop / self.mass)
+        )
+
+    def drop_at(self, s):
+        """The potential drop ``U(d_m) - U(d)`` [J] at the loading point ``s``."""
+        value = jnp.zeros_like(self.max_deflection * s)
+        for _, drop, lo, hi, active in self.pieces:
+            inside = (s >= lo) & active
+            value = jnp.where(inside, drop(jnp.clip(s, lo, hi)), value)
+        return value
+
+    def loading_force(self, s):
+        """The contact force at the loading point ``s`` [N]."""
+        d = self.max_deflection * (1.0 - s * s)
+        f_el, f_pl, d_s = self.forces
+        return jnp.where(d > d_s, f_pl(jnp.maximum(d, d_s)), f_el(jnp.minimum(d, d_s)))
+
+    def restitution_travel(self, lo, hi=1.0):
+        """Time to travel the restitution points ``[lo, hi]`` (0 for an empty
+        span, evaluated on a benign one so that gradients stay finite)."""
+        ok = hi - lo > 1e-12
+        t = _travel_time(
+            self.stroke,
+            self.drop_unloading,
+            self.mass,
+            self.order,
+            jnp.where(ok, lo, 0.0),
+            jnp.where(ok, hi, 1.0),
+        )
+        return jnp.where(ok, t, 0.0)
+
+    def restitution_velocity(self, r):
+        """``v_n`` (< 0: receding) at the restitution point ``r`` (at ``r = 1``
+        exactly ``-v_out``, where the potential's log form has no derivative)."""
+        end = r > 1.0 - 1e-12
+        drop = self.drop_unloading(jnp.where(end, 0.5, r))
+        return jnp.where(
+            end, -self.rebound_velocity, -safe_sqrt(2.0 * drop / self.mass)
+        )
+
+    def restitution_force(self, r):
+        """``F = F_m ((d - d_r) / (d_m - d_r))^p = F_m (1 - r^2)^p`` [N] (JG-9)."""
+        return self.peak_force * (1.0 - r * r) ** self.unloading_exponent
+
+    def outputs(self) -> dict:
+        return dict(
+            contact_time=self.contact_time,
+            compression_time=self.compression_time,
+            rebound_velocity=self.rebound_velocity,
+            max_deflection=self.max_deflection,
+            num_steps=jnp.zeros((), jnp.int32),
+            result=RESULTS.where(
+                self.separates, RESULTS.successful, RESULTS.never_separates
+            ),
+        )
+
+
+def solve_quadrature(problem, bound, settings) -> dict:
+    """The outputs of :func:`normal_timeline` (the ``"quadrature"`` method)."""
+    return normal_timeline(problem, bound, settings).outputs()

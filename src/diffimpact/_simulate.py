@@ -19,24 +19,38 @@ from ._laws._base import AbstractNormalLaw
 from ._laws._friction import Friction
 from ._normal_solve import _assemble, _solve_events, _solve_smooth
 from ._planar_solve import solve_planar
-from ._quadrature import solve_quadrature
+from ._quadrature import normal_timeline
 from ._result import RESULTS, ImpactResult, finish, first_failure, raise_if_failed
 from ._solver import SolverSettings
+from ._tangential import tangential_report
 from .scenes._base import AbstractScene
 from .scenes._planar import AbstractPlanarScene
 
-_METHODS = ("smooth", "events", "quadrature")
+_METHODS = ("auto", "smooth", "events", "quadrature")
 
 
-def _quadrature(problem, bound, settings):
-    """The ODE-free path.  Its travel times integrate ``1/sqrt(potential drop)``
-    near a turning point, where float32 cancellation can make the drop negative
-    (NaN times, seen in the stress grid): a float32 impact is computed in
-    float64 when JAX has it, and returned in float32.  Without x64 the outputs
-    are checked, and a non-finite one is an error, never a silent NaN."""
+def _quadrature(problem, bound, settings, scene=None, friction=None):
+    """The ODE-free path; with ``friction``, also the closed-form tangential
+    outcome of ``scene`` (:mod:`._tangential`) under the key ``"tangential"``.
+
+    Its travel times integrate ``1/sqrt(potential drop)`` near a turning
+    point, where float32 cancellation can make the drop negative (NaN times,
+    seen in the stress grid): a float32 impact is computed in float64 when JAX
+    has it, and returned in float32.  Without x64 the outputs are checked, and
+    a non-finite one is an error, never a silent NaN."""
+
+    def solve(problem, bound, scene, friction):
+        timeline = normal_timeline(problem, bound, settings)
+        raw = timeline.outputs()
+        if friction is not None:
+            raw["tangential"] = tangential_report(
+                scene, problem, timeline, friction, settings
+            )
+        return raw
+
     dtype = problem.velocity.dtype
     if dtype != jnp.float32 or not jax.config.jax_enable_x64:
-        raw = solve_quadrature(problem, bound, settings)
+        raw = solve(problem, bound, scene, friction)
         if dtype == jnp.float32:
             finite = jnp.all(
                 jnp.stack(
@@ -58,36 +72,65 @@ def _quadrature(problem, bound, settings):
             lambda x: x.astype(to) if eqx.is_inexact_array(x) else x, tree
         )
 
-    raw = solve_quadrature(
-        cast(problem, jnp.float64), cast(bound, jnp.float64), settings
-    )
+    raw = solve(*cast((problem, bound, scene, friction), jnp.float64))
     return cast(raw, dtype)
+
+
+def _exact_tangential(scene, friction) -> bool:
+    """Whether the tangential outcome has the closed form of
+    :mod:`._tangential` (the law must also be rate-independent): a scene
+    whose slip decouples, with rigid friction and no viscous term."""
+    return (
+        isinstance(scene, AbstractPlanarScene)
+        and scene.tangential_decouples
+        and friction is not None
+        and not friction.compliant
+        and friction.mu_v is None
+    )
 
 
 @eqx.filter_jit
 def _simulate(scene, law, method, settings, n_history, friction, throw):
-    if isinstance(scene, AbstractPlanarScene) and (
-        friction is not None or not scene.normal_decouples
-    ):
-        res = solve_planar(scene, law, friction, settings)
-        return finish(res, res.result, throw)
-    # 1-DOF scenes, and frictionless planar scenes whose normal DOF decouples
-    # (`normal_decouples`): solved as the 1-DOF normal problem, with no
+    planar = isinstance(scene, AbstractPlanarScene)
+    coupled = planar and (friction is not None or not scene.normal_decouples)
+    # 1-DOF scenes, frictionless planar scenes whose normal DOF decouples
+    # (`normal_decouples`), and decoupled scenes with rigid friction
+    # (`_exact_tangential`): solved as the 1-DOF normal problem, with no
     # tangential state at all.
     problem, bound, inside = within_model(law, scene.normal_problem())
-    if method == "smooth":
+    exact = _exact_tangential(scene, friction) and not bound.rate_dependent
+    if coupled and method == "quadrature" and not exact:
+        raise ValueError(_NO_EXACT_TANGENTIAL)
+    if coupled and not (exact and method in ("auto", "quadrature")):
+        res = solve_planar(scene, law, friction, settings)
+        return finish(res, res.result, throw)
+    if method in ("auto", "smooth") and not coupled:
         raw = _solve_smooth(problem, bound, settings, n_history)
+        tangential = {}
     elif method == "events":
         raw = _solve_events(problem, bound, settings)
+        tangential = {}
     else:
-        raw = _quadrature(problem, bound, settings)
+        raw = _quadrature(problem, bound, settings, scene, friction)
+        tangential = raw.pop("tangential", {})
     result = first_failure(inside, raw.pop("result"))
     out = _assemble(problem, bound, raw)
     result = first_failure(result, _physical(out))
     extras = scene.extras(out["rebound_velocity"])
-    if isinstance(scene, AbstractPlanarScene):
+    if tangential:
+        extras = {**extras, **tangential}
+    elif planar:
         extras = {**extras, **scene.frictionless_report(out["contact_time"])}
     return finish(ImpactResult(**out, extras=extras, result=result), result, throw)
+
+
+_NO_EXACT_TANGENTIAL = (
+    "method='quadrature' with friction needs a scene whose tangential motion "
+    "decouples (scenes.SphereOnIncline), rigid friction without a viscous "
+    "term (Friction(mu) or Friction(mu, mu_s=...), not compliant, mu_v not "
+    "given) and a rate-independent law (Hertz, JacksonGreen); use "
+    "method='smooth' (the ODE) otherwise"
+)
 
 
 def _physical(out):
@@ -111,7 +154,7 @@ def _physical(out):
 def simulate(
     scene: AbstractScene,
     law: AbstractNormalLaw,
-    method: str = "smooth",
+    method: str = "auto",
     *,
     friction=None,
     settings: SolverSettings = SolverSettings(),
@@ -125,7 +168,16 @@ def simulate(
     - `scene`: e.g. :class:`diffimpact.scenes.NormalImpact` or
       :class:`diffimpact.scenes.Collinear`.
     - `law`: a normal force law (:class:`Hertz`, :class:`JacksonGreen`, ...).
-    - `method`: ``"smooth"`` (default), ``"events"`` or ``"quadrature"``.
+    - `method`: ``"auto"`` (default), ``"smooth"``, ``"events"`` or
+      ``"quadrature"``.  ``"smooth"`` integrates the smooth-switched ODE,
+      ``"events"`` an event-switched one (1-DOF normal impacts), and
+      ``"quadrature"`` solves a normal impact by energy integrals, without an
+      ODE (rate-independent laws: Hertz, JacksonGreen).  With friction on a
+      scene whose tangential motion decouples (a sphere on a plane) and rigid
+      friction without a viscous term, ``"quadrature"`` also gives the
+      tangential outcome in closed form (stick, re-slip and all; see
+      :mod:`diffimpact._tangential`).  ``"auto"`` takes that closed form
+      wherever it applies, and ``"smooth"`` everywhere else.
     - `settings`: a :class:`SolverSettings`.
     - `friction`: a :class:`Friction` at the contact point, for planar scenes
       (e.g. :class:`diffimpact.scenes.SphereOnIncline`); None = frictionless,
@@ -156,7 +208,7 @@ def simulate(
         raise TypeError(
             f"`law` must be a diffimpact contact law, got {type(law).__name__}"
         )
-    if n_history < 0 or (n_history > 0 and method != "smooth"):
+    if n_history < 0 or (n_history > 0 and method not in ("auto", "smooth")):
         raise ValueError(
             "`n_history` must be >= 0, and histories come from method='smooth'"
         )
@@ -172,8 +224,11 @@ def simulate(
             "(a head-on impact) does not have; use a planar scene such as "
             "scenes.SphereOnIncline"
         )
-    if friction is not None and method != "smooth":
-        raise ValueError("friction is solved by method='smooth' only")
+    if friction is not None and method == "events":
+        raise ValueError(
+            "friction is solved by method='smooth' (the ODE), or for a sphere "
+            "with rigid friction by 'quadrature' (closed form); not by 'events'"
+        )
     if (
         n_history > 0
         and planar
@@ -186,7 +241,7 @@ def simulate(
     if (
         isinstance(scene, AbstractPlanarScene)
         and not scene.normal_decouples
-        and method != "smooth"
+        and method not in ("auto", "smooth")
     ):
         raise ValueError(
             f"{type(scene).__name__} is solved by method='smooth' only: its "

@@ -141,7 +141,10 @@ class Friction(AbstractValidated):
 
     **Arguments:** `mu`: the Coulomb (kinetic) coefficient ``mu_k`` (>= 0;
     ``mu_k=`` is accepted as a keyword alias); `mu_v`: viscous coefficient [N
-    s/m] (>= 0, default 0); `mu_s`: static coefficient (>= ``mu``; default
+    s/m] (>= 0; default None: no viscous term at all, which a solve does not
+    pay for, and which lets a sphere take the exact shortcut of
+    :func:`diffimpact.simulate`; a number, 0.0 included, makes it a
+    differentiable field); `mu_s`: static coefficient (>= ``mu``; default
     None = plain F-1, bit-identical to ``Friction(mu, mu_v)``);
     `breakaway_slip`: ``x_s`` in slip widths (static; default None: 1 for the
     exact hold, 4 for the slope-only law); `compliant`: Mindlin tangential
@@ -150,7 +153,7 @@ class Friction(AbstractValidated):
     """
 
     mu: Array
-    mu_v: Array
+    mu_v: Array | None
     mu_s: Array | None
     breakaway_slip: float | None = eqx.field(static=True)
     compliant: bool = eqx.field(static=True)
@@ -158,7 +161,7 @@ class Friction(AbstractValidated):
     def __init__(
         self,
         mu=None,
-        mu_v=0.0,
+        mu_v=None,
         mu_s=None,
         *,
         mu_k=None,
@@ -171,16 +174,15 @@ class Friction(AbstractValidated):
                 "(the same coefficient), not both and not neither"
             )
         self.mu = as_float(mu if mu is not None else mu_k)
-        self.mu_v = as_float(mu_v)
+        self.mu_v = None if mu_v is None else as_float(mu_v)
         self.mu_s = None if mu_s is None else as_float(mu_s)
         self.breakaway_slip = None if breakaway_slip is None else float(breakaway_slip)
         self.compliant = bool(compliant)
 
     def _checks(self):
-        out = [
-            nonnegative(self.mu, "Friction.mu (kinetic coefficient mu_k)"),
-            nonnegative(self.mu_v, "Friction.mu_v", "N s/m"),
-        ]
+        out = [nonnegative(self.mu, "Friction.mu (kinetic coefficient mu_k)")]
+        if self.mu_v is not None:
+            out.append(nonnegative(self.mu_v, "Friction.mu_v", "N s/m"))
         if self.mu_s is not None:
             out.append(
                 check(
@@ -229,6 +231,12 @@ class Friction(AbstractValidated):
             return _COULOMB_BAND
         return max(_COULOMB_BAND, self.breakaway(hold=True) + 1.0)
 
+    def viscous(self, slip_velocity, sign):
+        """The viscous part ``mu_v |v_t| sign`` [N] (0 without a viscous term)."""
+        if self.mu_v is None:
+            return jnp.zeros_like(slip_velocity)
+        return self.mu_v * jnp.abs(slip_velocity) * sign
+
     def force(self, normal_force, slip_velocity, width, holding_force=None):
         """Tangential force [N] opposing ``slip_velocity`` [m/s] (F-1, F-2);
         ``width`` [m/s] is the slip width ``eps``.  With ``holding_force`` [N]
@@ -236,11 +244,13 @@ class Friction(AbstractValidated):
         else the slope-only law (class docstring)."""
         x = slip_velocity / width
         sign = jnp.tanh(x)
-        viscous = self.mu_v * jnp.abs(slip_velocity) * sign
+        viscous = self.viscous(slip_velocity, sign)
         if holding_force is not None:
             return self._hold_force(normal_force, x, holding_force) - viscous
         if self.mu_s is None:
-            magnitude = self.mu * normal_force + self.mu_v * jnp.abs(slip_velocity)
+            magnitude = self.mu * normal_force
+            if self.mu_v is not None:
+                magnitude = magnitude + self.mu_v * jnp.abs(slip_velocity)
             return -magnitude * sign
         u = x / self.breakaway(hold=False)
         peak = u * jnp.exp(0.5 * (1.0 - u * u))
@@ -254,8 +264,7 @@ class Friction(AbstractValidated):
         capacity = self.mu * normal_force
         u = _ratio(elastic_force, capacity)
         coulomb = capacity * _saturate(u, _SPRING_CORNER)
-        x = slip_velocity / width
-        return coulomb - self.mu_v * jnp.abs(slip_velocity) * jnp.tanh(x)
+        return coulomb - self.viscous(slip_velocity, jnp.tanh(slip_velocity / width))
 
     def _hold_force(self, normal_force, x, holding_force):
         """Coulomb part of the exact-hold law: ``c S(F_h / c - beta x)``."""

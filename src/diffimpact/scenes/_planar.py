@@ -28,6 +28,14 @@ class AbstractPlanarScene(AbstractScene):
     # normal motion (a link, a bar), and even a frictionless impact is solved by
     # the planar solver.
     normal_decouples: ClassVar[bool] = False
+    # True when, moreover, the contact point's slip obeys ``dv_t/dt = a_t +
+    # F_t / m_t`` with constants ``a_t = J_t M^-1 Q`` and ``m_t = 1 / (J_t M^-1
+    # J_t^T)`` whatever the normal motion: constant Jacobians, ``J_n M^-1
+    # J_t^T = 0``, and a report that reads velocities only.  Then the normal
+    # impact does not feel friction and rigid Coulomb friction's outcome
+    # follows from the normal solution in closed form (`diffimpact.simulate`,
+    # method "auto" or "quadrature").
+    tangential_decouples: ClassVar[bool] = False
 
     @abc.abstractmethod
     def mass_diagonal(self) -> Array:
@@ -78,6 +86,7 @@ class SphereOnIncline(AbstractPlanarScene):
     height: Array = eqx.field(converter=as_float)
     gravity: Array = eqx.field(converter=as_float, default=9.81)
     normal_decouples: ClassVar[bool] = True
+    tangential_decouples: ClassVar[bool] = True
 
     def _checks(self):
         a = self.angle
