@@ -364,31 +364,61 @@ def test_predict_under_jit_and_vmap():
             jax.block_until_ready(f(1.6))
 
 
-def test_cli_second_run_compiles_nothing(tmp_path):
+# Runs the command line and reports, at exit, how many programs XLA was asked
+# for and how many of them came from the persistent cache (JAX's public
+# monitoring events: one compile event per program, hit or not).
+_COUNTING_CLI = """
+import atexit, sys
+import jax.monitoring as mon
+n = {"programs": 0, "hits": 0}
+def duration(event, secs, **kw):
+    if event == "/jax/core/compile/backend_compile_duration":
+        n["programs"] += 1
+def event(event, **kw):
+    if event == "/jax/compilation_cache/cache_hits":
+        n["hits"] += 1
+mon.register_event_duration_secs_listener(duration)
+mon.register_event_listener(event)
+atexit.register(lambda: print("PROGRAMS", n["programs"], n["hits"]))
+from diffimpact._cli import main
+sys.exit(main(sys.argv[1:]))
+"""
+
+
+@pytest.mark.parametrize(
+    "argv",
+    [
+        ["simulate", "--method", "quadrature"],
+        ["fit", "data/ball_prism.csv", "--free", "yield_strength,mu"],
+    ],
+    ids=["simulate", "fit"],
+)
+def test_cli_second_run_compiles_nothing(tmp_path, argv):
     """The command line keeps its compiled programs: a second run in a fresh
-    process adds nothing to the cache (everything was loaded from it);
-    DIFFIMPACT_NO_CACHE=1 turns it off."""
+    process loads every program from the persistent cache and compiles none
+    (a program with a host callback, such as a traced input check, would not
+    be stored: the fit's rows are checked eagerly instead); a fit writes its
+    outputs to a new folder each run.  DIFFIMPACT_NO_CACHE=1 turns it off."""
     env = {**os.environ, "DIFFIMPACT_CACHE_DIR": str(tmp_path / "cache")}
-    argv = [
-        sys.executable,
-        "-m",
-        "diffimpact._cli",
-        "simulate",
-        "--method",
-        "quadrature",
-    ]
 
-    def run(extra=None):
-        subprocess.run(
-            argv, env={**env, **(extra or {})}, check=True, capture_output=True
+    def run(i, extra=None):
+        out = ["--out", str(tmp_path / f"fit{i}")] if argv[0] == "fit" else []
+        p = subprocess.run(
+            [sys.executable, "-c", _COUNTING_CLI, *argv, *out],
+            env={**env, **(extra or {})},
+            check=True,
+            capture_output=True,
+            text=True,
         )
-        return sorted(p.name for p in (tmp_path / "cache").glob("*"))
+        line = [x for x in p.stdout.splitlines() if x.startswith("PROGRAMS")][-1]
+        return [int(v) for v in line.split()[1:]]
 
-    first = run()
-    assert first, "the first run stored nothing"
-    assert run() == first
+    programs, hits = run(1)
+    assert programs > 0 and hits < programs
+    programs2, hits2 = run(2)
+    assert programs2 == programs and hits2 == programs2  # all from the cache
     env["DIFFIMPACT_CACHE_DIR"] = str(tmp_path / "off")
-    subprocess.run(argv, env={**env, "DIFFIMPACT_NO_CACHE": "1"}, check=True)
+    run(3, {"DIFFIMPACT_NO_CACHE": "1"})
     assert not (tmp_path / "off").exists()
 
 

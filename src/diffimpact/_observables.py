@@ -381,7 +381,11 @@ def row_label(lines, i: int) -> str:
 
 
 def predict(
-    experiment: Experiment, inputs: dict | None = None, *, throw: bool = True
+    experiment: Experiment,
+    inputs: dict | None = None,
+    *,
+    throw: bool = True,
+    _guarded: bool = True,
 ) -> dict:
     """Simulate one impact and return every measurable quantity it gives (SI).
 
@@ -395,7 +399,7 @@ def predict(
 
     Keys follow the experiment CSV quantities (``contact_time``,
     ``cor_normal``, ...); ``cor_tangential`` is the centre-of-mass tangential
-    velocity after over before.
+    velocity after over before.  (`_guarded`: as in :func:`simulate`.)
     """
     e = with_inputs(experiment, inputs or {})
     r = simulate(
@@ -405,6 +409,7 @@ def predict(
         friction=e.friction,
         settings=e.settings,
         throw=throw,
+        _guarded=_guarded,
     )
     out = {
         "contact_time": r.contact_time,

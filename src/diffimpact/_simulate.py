@@ -160,6 +160,7 @@ def simulate(
     settings: SolverSettings = SolverSettings(),
     n_history: int = 0,
     throw: bool = True,
+    _guarded: bool = True,
 ) -> ImpactResult:
     """Simulate one impact of ``scene`` under the normal contact ``law``.
 
@@ -197,6 +198,12 @@ def simulate(
 
     ``jax.jit``, ``jax.vmap`` and ``jax.grad`` compose with this function: every
     number in ``scene`` and ``law`` is a traced field.
+
+    (`_guarded=False`, private: no traced check of the inputs, for callers
+    that checked every input eagerly and keep traced values inside their
+    domains, such as :func:`diffimpact.fit`.  A traced check is a host
+    callback, and JAX does not store a program with one in its persistent
+    compilation cache.)
     """
     if method not in _METHODS:
         raise ValueError(f"`method` must be one of {_METHODS}, got {method!r}")
@@ -257,7 +264,8 @@ def simulate(
     # cannot be dropped (see `_checks.guard`).
     for name, part in (("scene", scene), ("law", law), ("friction", friction)):
         require_scalars(part, name)
-    scene, law, friction = guard((scene, law, friction))
+    if _guarded:
+        scene, law, friction = guard((scene, law, friction))
     traced = is_traced((scene, law, friction))
     res = _simulate(scene, law, method, settings, n_history, friction, throw and traced)
     if throw and not traced:
