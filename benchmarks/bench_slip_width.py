@@ -88,10 +88,10 @@ def smooth(kind, angle, mu_k, mu_s, width, max_steps):
         scene = di.scenes.FreeBar(BAR_MASS, BAR, PLATE, 0.3, angle=math.radians(angle))
     settings = di.SolverSettings(slip_width=width, max_steps=max_steps)
     friction = di.Friction(mu_k, mu_s=mu_s)
-    r = di.simulate(scene, LAW, friction=friction, settings=settings)
+    r = di.simulate(scene, LAW, "smooth", friction=friction, settings=settings)
     jax.block_until_ready(r.contact_time)  # compile
     t = time.perf_counter()
-    r = di.simulate(scene, LAW, friction=friction, settings=settings)
+    r = di.simulate(scene, LAW, "smooth", friction=friction, settings=settings)
     jax.block_until_ready(r.contact_time)
     return r, time.perf_counter() - t
 

@@ -233,6 +233,24 @@ def _residual_fn(u, problem: _Problem):
     return problem.residuals(u), None
 
 
+# Compiled once per problem structure (scene, law, free parameters, number of
+# rows), not per call: the problem is an argument, so a second fit of the same
+# kind in a process reuses the traced programs instead of tracing them again.
+@eqx.filter_jit
+def _predictions(problem: _Problem, u):
+    return problem.predictions(u)
+
+
+@eqx.filter_jit
+def _jacobian(problem: _Problem, u):
+    return jax.jacfwd(problem.residuals)(u)
+
+
+_init = eqx.filter_jit(lambda solver, *args: solver.init(*args))
+_step = eqx.filter_jit(lambda solver, *args: solver.step(*args))
+_terminate = eqx.filter_jit(lambda solver, *args: solver.terminate(*args))
+
+
 def fit(
     data,
     experiment: Experiment | str | None = None,
@@ -391,7 +409,7 @@ def _check_bounds(experiment, free, transforms) -> None:
 
 
 def _check_predictions(problem: _Problem, u, data, when: str) -> None:
-    pred, codes = eqx.filter_jit(problem.predictions)(u)
+    pred, codes = _predictions(problem, u)
     codes = np.asarray(codes)
     # A prediction that is not finite where a measurement is fitted (say a
     # tangential COR at 0 deg, with no tangential approach) fails its row too.
@@ -478,21 +496,17 @@ def _least_squares(problem, u0, solver_name, max_steps, rtol, atol, bar):
         solver = optx.GaussNewton(rtol=rtol, atol=atol)
     fn, options, tags = _residual_fn, {}, frozenset()
     f_struct, aux_struct = jax.eval_shape(lambda: fn(u0, problem))
-    state = eqx.filter_jit(solver.init)(
-        fn, u0, problem, options, f_struct, aux_struct, tags
-    )
-    # One jitted step at a time (optimistix's init/step/terminate interface)
+    state = _init(solver, fn, u0, problem, options, f_struct, aux_struct, tags)
+    # One compiled step at a time (optimistix's init/step/terminate interface)
     # so that the command line can show progress; the compiled step is reused.
-    step = eqx.filter_jit(solver.step)
-    terminate = eqx.filter_jit(solver.terminate)
     u, steps, converged = u0, 0, False
     best, stalled = math.inf, 0
     while steps < max_steps:
-        done, result = terminate(fn, u, problem, options, state, tags)
+        done, result = _terminate(solver, fn, u, problem, options, state, tags)
         if bool(done):
             converged = result == optx.RESULTS.successful
             break
-        u, state, _ = step(fn, u, problem, options, state, tags)
+        u, state, _ = _step(solver, fn, u, problem, options, state, tags)
         steps += 1
         r = state.f_info.residual
         cost = 0.5 * float(jnp.sum(r**2))
@@ -556,8 +570,8 @@ def _minimise(problem, u0, name, max_steps, rtol, atol, learning_rate, bar):
 def _result(problem, data, u, steps, converged, solver, seconds, x0, absolute):
     names = problem.names
     x = np.array([float(v) for v in problem.parameters(u)])
-    pred = np.asarray(eqx.filter_jit(problem.predictions)(u)[0])
-    jac_u = np.asarray(eqx.filter_jit(lambda v: jax.jacfwd(problem.residuals)(v))(u))
+    pred = np.asarray(_predictions(problem, u)[0])
+    jac_u = np.asarray(_jacobian(problem, u))
     mask = np.asarray(problem.mask)
     measured = np.where(mask, np.asarray(problem.measured), np.nan)
     sigma = np.asarray(problem.sigma)
