@@ -29,8 +29,8 @@ def test_no_recompile_for_new_numbers(monkeypatch):
 
     monkeypatch.setattr(_simulate, "_solve_smooth", counting)
     st = di.SolverSettings(rtol=1.2345e-10)  # a static structure used nowhere else
-    di.simulate(sphere(1.0, 300e6), di.JacksonGreen(dr_b=5.4), settings=st)
-    di.simulate(sphere(2.0, 400e6), di.JacksonGreen(dr_b=5.3), settings=st)
+    di.simulate(sphere(1.0, 300e6), di.JacksonGreen(dr_b=5.4), "smooth", settings=st)
+    di.simulate(sphere(2.0, 400e6), di.JacksonGreen(dr_b=5.3), "smooth", settings=st)
     assert len(calls) == 1
 
 

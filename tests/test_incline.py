@@ -73,9 +73,9 @@ def test_frictionless_is_the_normal_impact(monkeypatch):
     law = di.JacksonGreen()
     sc = scene(30.0)
     phi = math.radians(30.0)
-    oblique = eqx.filter_jit(lambda s: di.simulate(s, law))(sc)
+    oblique = eqx.filter_jit(lambda s: di.simulate(s, law, "smooth"))(sc)
     cos = jnp.cos(sc.angle)  # the same arithmetic as the scene: bit-identical
-    normal = eqx.filter_jit(lambda s: di.simulate(s, law))(
+    normal = eqx.filter_jit(lambda s: di.simulate(s, law, "smooth"))(
         di.scenes.NormalImpact(
             M, R, BALL, PRISM, sc.impact_speed * cos, sc.gravity * cos
         )

@@ -301,8 +301,8 @@ def test_step_budget_is_a_code_and_a_class():
     scene = _soft_sphere(0.5)
     tiny = di.SolverSettings(max_steps=3)
     with pytest.raises(di.StepBudgetError, match="step budget"):
-        di.simulate(scene, di.Hertz(), settings=tiny)
-    r = di.simulate(scene, di.Hertz(), settings=tiny, throw=False)
+        di.simulate(scene, di.Hertz(), "smooth", settings=tiny)
+    r = di.simulate(scene, di.Hertz(), "smooth", settings=tiny, throw=False)
     assert r.result == di.RESULTS.max_steps_reached
     assert np.isnan(float(r.contact_time))
     assert di.result_name(r.result._value) == "max_steps_reached"

@@ -88,7 +88,10 @@ def test_traced_bad_velocity_in_vmap_raises():
 def test_step_budget_error_is_clear():
     with pytest.raises(di.StepBudgetError, match="max_steps"):
         di.simulate(
-            sphere(), di.JacksonGreen(), settings=di.SolverSettings(max_steps=5)
+            sphere(),
+            di.JacksonGreen(),
+            "smooth",
+            settings=di.SolverSettings(max_steps=5),
         )
 
 
@@ -96,5 +99,8 @@ def test_no_separation_error_is_clear():
     """A time budget too short to separate raises, naming the setting."""
     with pytest.raises(di.NeverSeparatesError, match="max_time"):
         di.simulate(
-            sphere(), di.JacksonGreen(), settings=di.SolverSettings(max_time=1.0)
+            sphere(),
+            di.JacksonGreen(),
+            "smooth",
+            settings=di.SolverSettings(max_time=1.0),
         )

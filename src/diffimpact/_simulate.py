@@ -104,7 +104,13 @@ def _simulate(scene, law, method, settings, n_history, friction, throw):
     if coupled and not (exact and method in ("auto", "quadrature")):
         res = solve_planar(scene, law, friction, settings)
         return finish(res, res.result, throw)
-    if method in ("auto", "smooth") and not coupled:
+    # "auto": the exact ODE-free solution wherever it applies (a
+    # rate-independent law); the smooth ODE for rate-dependent laws and for
+    # histories.
+    smooth = method == "smooth" or (
+        method == "auto" and (bound.rate_dependent or n_history > 0)
+    )
+    if smooth and not coupled:
         raw = _solve_smooth(problem, bound, settings, n_history)
         tangential = {}
     elif method == "events":
@@ -170,15 +176,17 @@ def simulate(
       :class:`diffimpact.scenes.Collinear`.
     - `law`: a normal force law (:class:`Hertz`, :class:`JacksonGreen`, ...).
     - `method`: ``"auto"`` (default), ``"smooth"``, ``"events"`` or
-      ``"quadrature"``.  ``"smooth"`` integrates the smooth-switched ODE,
-      ``"events"`` an event-switched one (1-DOF normal impacts), and
-      ``"quadrature"`` solves a normal impact by energy integrals, without an
-      ODE (rate-independent laws: Hertz, JacksonGreen).  With friction on a
-      scene whose tangential motion decouples (a sphere on a plane) and rigid
-      friction without a viscous term, ``"quadrature"`` also gives the
-      tangential outcome in closed form (stick, re-slip and all; see
-      :mod:`diffimpact._tangential`).  ``"auto"`` takes that closed form
-      wherever it applies, and ``"smooth"`` everywhere else.
+      ``"quadrature"``.  ``"smooth"`` integrates the smooth-switched ODE
+      (every law, histories), ``"events"`` an event-switched one (1-DOF
+      normal impacts), and ``"quadrature"`` solves a normal impact by energy
+      integrals, without an ODE (rate-independent laws: Hertz, JacksonGreen;
+      exact to about 1e-11).  With friction on a scene whose tangential motion
+      decouples (a sphere on a plane) and rigid friction without a viscous
+      term, ``"quadrature"`` also gives the tangential outcome in closed form
+      (stick, re-slip and all; see :mod:`diffimpact._tangential`).
+      ``"auto"`` takes ``"quadrature"`` wherever it applies, and ``"smooth"``
+      everywhere else (rate-dependent laws, coupled planar scenes, compliant
+      or viscous friction, ``n_history > 0``).
     - `settings`: a :class:`SolverSettings`.
     - `friction`: a :class:`Friction` at the contact point, for planar scenes
       (e.g. :class:`diffimpact.scenes.SphereOnIncline`); None = frictionless,
