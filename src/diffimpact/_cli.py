@@ -274,6 +274,12 @@ def simulate_cmd(args) -> int:
             f"--cor applies to the dissipative laws only (--law hunt-crossley, "
             f"lankarani-nikravesh, flores), not to {args.law or 'jackson-green'}"
         )
+    if args.scene != "normal_impact" and args.method in ("events", "all"):
+        raise ValueError(
+            f"--method {args.method} is for normal_impact; scene {args.scene} "
+            "takes 'smooth' (the ODE) or 'quadrature' (closed form: "
+            "sphere_on_incline with rigid friction)"
+        )
     if args.scene == "normal_impact":
         experiment = _normal_experiment(args)
     else:
@@ -323,12 +329,6 @@ def simulate_cmd(args) -> int:
         results, _ = _simulate_all(experiment.scene, experiment.law, methods)
         print(_report(results))
         return 0
-    if args.method in ("events", "all"):
-        raise ValueError(
-            f"--method {args.method} is for normal_impact; scene {args.scene} "
-            "takes 'smooth' (the ODE) or 'quadrature' (closed form: "
-            "sphere_on_incline with rigid friction)"
-        )
     if args.method is not None:
         experiment = dataclasses.replace(experiment, method=args.method)
     out = di.predict(experiment)
