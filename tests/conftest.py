@@ -75,3 +75,18 @@ def assert_grad_matches_fd(f, p0, reference, tol=1e-5, step=1e-4):
 @pytest.fixture(autouse=True, scope="session")
 def _x64():
     assert jax.config.jax_enable_x64, "the test suite runs in float64"
+
+
+def sharp_reference():
+    """``benchmarks/sharp_stickslip.py``, the event-based stick/slip reference
+    (scipy), loaded once per process."""
+    import importlib.util
+    import sys
+
+    name = "sharp_stickslip"
+    if name not in sys.modules:
+        path = pathlib.Path(__file__).parents[1] / "benchmarks" / f"{name}.py"
+        spec = importlib.util.spec_from_file_location(name, path)
+        module = sys.modules[name] = importlib.util.module_from_spec(spec)
+        spec.loader.exec_module(module)
+    return sys.modules[name]

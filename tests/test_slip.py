@@ -1,26 +1,18 @@
 """Friction regimes (issue 4): slip classification, static/kinetic friction
 (F-2), the sharp event-based stick/slip reference, and critical angles."""
 
-import importlib.util
 import math
-import pathlib
-import sys
 
 import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
-from conftest import rel
+from conftest import rel, sharp_reference
 from scipy.optimize import brentq
 
 import diffimpact as di
 
-_spec = importlib.util.spec_from_file_location(
-    "sharp_stickslip",
-    pathlib.Path(__file__).parents[1] / "benchmarks" / "sharp_stickslip.py",
-)
-sharp = sys.modules["sharp_stickslip"] = importlib.util.module_from_spec(_spec)
-_spec.loader.exec_module(sharp)
+sharp = sharp_reference()
 
 # data.md A: 19 mm bearing ball on a hard prism, dropped 0.29 m.
 BALL = di.Material(208e9, 0.3, 2e9)

@@ -5,28 +5,18 @@ gradients against Richardson-extrapolated finite differences."""
 
 from __future__ import annotations
 
-import importlib.util
 import math
-import pathlib
-import sys
 
 import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
+from conftest import sharp_reference
 
 import diffimpact as di
 
-_spec = importlib.util.spec_from_file_location(
-    "sharp_stickslip",
-    pathlib.Path(__file__).parents[1] / "benchmarks" / "sharp_stickslip.py",
-)
-sharp = sys.modules.setdefault(
-    "sharp_stickslip", importlib.util.module_from_spec(_spec)
-)
-if not hasattr(sharp, "solve"):
-    _spec.loader.exec_module(sharp)
+sharp = sharp_reference()
 
 # data.md A: 19 mm bearing ball on a hard prism, dropped 0.29 m (Hertz: the
 # sharp reference integrates F = K d^1.5 with the same K).
