@@ -348,6 +348,13 @@ def test_span_settings_refuse_bad_fields(kw):
 def test_settings_types():
     with pytest.raises(TypeError, match="solver"):
         di.SolverSettings(solver="dopri8")
+    # NumPy scalars are numbers: stored as the Python number (static fields
+    # must hash), still checked.
+    s = di.SolverSettings(rtol=np.float32(1e-6), max_steps=np.int64(100))
+    assert type(s.rtol) is float and type(s.max_steps) is int
+    assert type(di.SpanSettings(rtol=np.float64(1e-8)).rtol) is float
+    with pytest.raises(ValueError, match="SolverSettings.rtol"):
+        di.SolverSettings(rtol=np.float32("nan"))
     with pytest.raises(TypeError, match="settings"):
         di.simulate(_soft_sphere(0.1), di.Hertz(), settings=dict(rtol=1e-8))
 
@@ -494,3 +501,24 @@ def test_shapes_and_types_are_named():
     for bad in (None, "abc", 2e11 + 1j):
         with pytest.raises(TypeError, match="expected a real number"):
             di.Material(bad, 0.3)
+    # A material (or friction) field holding something else is named at once,
+    # not an AttributeError inside the solve.
+    plate = _steel()
+    for make, field in (
+        (
+            lambda: di.scenes.NormalImpact(M, R, "steel", plate, 1.0),
+            "NormalImpact.body",
+        ),
+        (
+            lambda: di.scenes.SphereOnIncline(M, R, plate, None, 0.5, 0.3),
+            "SphereOnIncline.flat",
+        ),
+        (
+            lambda: di.scenes.Collinear(1.0, 2.0, 1.0, 0.0, R, plate, 7.0),
+            "Collinear.body2",
+        ),
+    ):
+        with pytest.raises(
+            TypeError, match=rf"`{field}` must be a diffimpact.Material"
+        ):
+            make()

@@ -17,7 +17,11 @@ in ``_checks()``.  They run twice, with the same message:
 
 from __future__ import annotations
 
+import dataclasses
+import functools
 import math
+import types
+import typing
 from collections.abc import Iterable
 from typing import NamedTuple
 
@@ -125,7 +129,41 @@ class AbstractValidated(eqx.Module):
         return []
 
     def __check_init__(self):
+        # A field declared as another validated module (a scene's `body:
+        # Material`, say) must hold one: a string or None there would otherwise
+        # surface as an AttributeError deep inside a solve.
+        for name, classes, optional in _module_fields(type(self)):
+            value = getattr(self, name)
+            if not (isinstance(value, classes) or (value is None and optional)):
+                want = " or ".join(c.__name__ for c in classes)
+                raise TypeError(
+                    f"`{type(self).__name__}.{name}` must be a diffimpact.{want}"
+                    f"{' or None' if optional else ''}, got {type(value).__name__}"
+                )
         raise_failed(self._checks())
+
+
+@functools.cache
+def _module_fields(cls) -> tuple:
+    """``(name, classes, optional)`` of the fields of ``cls`` annotated with
+    :class:`AbstractValidated` subclasses (``Material``, ``Material | None``)."""
+    try:
+        hints = typing.get_type_hints(cls)
+    except Exception:  # an annotation that does not resolve: nothing to check
+        return ()
+    out = []
+    for field in dataclasses.fields(cls):
+        hint = hints.get(field.name)
+        union = typing.get_origin(hint) in (typing.Union, types.UnionType)
+        options = typing.get_args(hint) if union else (hint,)
+        classes = tuple(
+            o
+            for o in options
+            if isinstance(o, type) and issubclass(o, AbstractValidated)
+        )
+        if classes:
+            out.append((field.name, classes, type(None) in options))
+    return tuple(out)
 
 
 def collect_checks(tree) -> list[Check]:
@@ -191,8 +229,8 @@ def static_positive(owner: str, name: str, value, allow_none=False) -> None:
     if value is None and allow_none:
         return
     ok = (
-        isinstance(value, int | float)
-        and not isinstance(value, bool)
+        isinstance(value, int | float | np.integer | np.floating)
+        and not isinstance(value, bool | np.bool_)
         and math.isfinite(value)
     )
     if not (ok and value > 0):
@@ -206,3 +244,12 @@ def static_count(owner: str, name: str, value, minimum: int = 1) -> None:
         raise ValueError(
             f"`{owner}.{name}` must be an integer >= {minimum}, got {value!r}"
         )
+
+
+def plain_number(value):
+    """A NumPy scalar as the Python number it holds (static settings must be
+    hashable plain numbers: ``np.float32(1e-6)`` is accepted as ``1e-6``);
+    anything else unchanged, for the settings' checks to judge."""
+    if isinstance(value, np.integer | np.floating) and not isinstance(value, bool):
+        return value.item()
+    return value

@@ -65,6 +65,7 @@ from ._checks import (
     as_float,
     guard,
     is_traced,
+    plain_number,
     require,
     require_finite,
     require_scalars,
@@ -111,18 +112,20 @@ class SpanSettings(eqx.Module):
     """
 
     solver: diffrax.AbstractSolver = eqx.field(static=True, default=diffrax.Dopri8())
-    rtol: float = eqx.field(static=True, default=1e-11)
-    atol: float = eqx.field(static=True, default=1e-13)
-    dtmax: float | None = eqx.field(static=True, default=None)
-    onset_step: float | None = eqx.field(static=True, default=1e-3)
-    pcoeff: float = eqx.field(static=True, default=0.0)
-    icoeff: float = eqx.field(static=True, default=1.0)
-    factormax: float = eqx.field(static=True, default=10.0)
-    max_steps: int = eqx.field(static=True, default=16384)
-    max_impacts: int = eqx.field(static=True, default=64)
-    velocity_width: float = eqx.field(static=True, default=1e-4)
-    phase_width: float = eqx.field(static=True, default=1e-4)
-    slip_width: float = eqx.field(static=True, default=1e-4)
+    rtol: float = eqx.field(static=True, converter=plain_number, default=1e-11)
+    atol: float = eqx.field(static=True, converter=plain_number, default=1e-13)
+    dtmax: float | None = eqx.field(static=True, converter=plain_number, default=None)
+    onset_step: float | None = eqx.field(
+        static=True, converter=plain_number, default=1e-3
+    )
+    pcoeff: float = eqx.field(static=True, converter=plain_number, default=0.0)
+    icoeff: float = eqx.field(static=True, converter=plain_number, default=1.0)
+    factormax: float = eqx.field(static=True, converter=plain_number, default=10.0)
+    max_steps: int = eqx.field(static=True, converter=plain_number, default=16384)
+    max_impacts: int = eqx.field(static=True, converter=plain_number, default=64)
+    velocity_width: float = eqx.field(static=True, converter=plain_number, default=1e-4)
+    phase_width: float = eqx.field(static=True, converter=plain_number, default=1e-4)
+    slip_width: float = eqx.field(static=True, converter=plain_number, default=1e-4)
     adjoint: diffrax.AbstractAdjoint = eqx.field(
         static=True, default=diffrax.RecursiveCheckpointAdjoint()
     )

@@ -5,7 +5,7 @@ from __future__ import annotations
 import diffrax
 import equinox as eqx
 
-from ._checks import static_count, static_positive
+from ._checks import plain_number, static_count, static_positive
 
 
 class SolverSettings(eqx.Module):
@@ -59,15 +59,15 @@ class SolverSettings(eqx.Module):
     """
 
     solver: diffrax.AbstractSolver = eqx.field(static=True, default=diffrax.Dopri8())
-    rtol: float = eqx.field(static=True, default=1e-11)
-    atol: float = eqx.field(static=True, default=1e-13)
-    velocity_width: float = eqx.field(static=True, default=1e-4)
-    phase_width: float = eqx.field(static=True, default=1e-4)
-    max_steps: int = eqx.field(static=True, default=4096)
-    max_time: float = eqx.field(static=True, default=100.0)
-    event_tol: float = eqx.field(static=True, default=1e-13)
-    quadrature_order: int = eqx.field(static=True, default=32)
-    slip_width: float = eqx.field(static=True, default=1e-4)
+    rtol: float = eqx.field(static=True, converter=plain_number, default=1e-11)
+    atol: float = eqx.field(static=True, converter=plain_number, default=1e-13)
+    velocity_width: float = eqx.field(static=True, converter=plain_number, default=1e-4)
+    phase_width: float = eqx.field(static=True, converter=plain_number, default=1e-4)
+    max_steps: int = eqx.field(static=True, converter=plain_number, default=4096)
+    max_time: float = eqx.field(static=True, converter=plain_number, default=100.0)
+    event_tol: float = eqx.field(static=True, converter=plain_number, default=1e-13)
+    quadrature_order: int = eqx.field(static=True, converter=plain_number, default=32)
+    slip_width: float = eqx.field(static=True, converter=plain_number, default=1e-4)
     adjoint: diffrax.AbstractAdjoint = eqx.field(
         static=True, default=diffrax.RecursiveCheckpointAdjoint()
     )
