@@ -91,6 +91,17 @@ def test_bom_loads(tmp_path):
             "semicolons",
         ),
         (
+            "tabs.csv",
+            b"scene\tdrop_height_m\tangle_deg\tcor_normal\n"
+            b"sphere_on_incline\t0.3\t30\t0.7\n",
+            "no commas but tabs",
+        ),
+        (
+            "quoted.csv",  # a quoted field spanning two lines: the next row is line 4
+            b'drop_height_m,angle_deg,cor_normal\n"0.3\n",30,0.7\n0.3,abc,0.7\n',
+            "line 4, column 'angle_deg': 'abc' is not a number",
+        ),
+        (
             "empty_output.csv",
             b"scene,drop_height_m,angle_deg,cor_normal,contact_time_us\n"
             b"sphere_on_incline,0.3,30,0.7,\n",
@@ -130,6 +141,14 @@ def test_row_numbering_is_the_file_line(tmp_path):
     p = _write(tmp_path, "lines.csv", text.encode())
     d = di.load_experiments(p)
     assert list(d.lines) == [4, 6]
+    # A commented-out row is skipped and the numbering kept; scene names are
+    # read as the registry reads them (case, '-' for '_').
+    text = (
+        "scene,drop_height_m,angle_deg,cor_normal\nsphere_on_incline,0.3,30,0.7\n"
+        "# sphere_on_incline,0.3,35,0.7 (excluded)\nSphere-On-Incline,0.3,40,0.7\n"
+    )
+    d2 = di.load_experiments(_write(tmp_path, "commented.csv", text.encode()))
+    assert list(d2.lines) == [2, 4] and d2.scene == "sphere_on_incline"
     with pytest.raises(ValueError, match=r"line 6: `SphereOnIncline.angle`"):
         di.fit(d, free="mu")
 

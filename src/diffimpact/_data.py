@@ -227,8 +227,11 @@ def load_experiments(path: str | os.PathLike) -> ExperimentData:
     impossible value (a normal COR above 1, a rebound faster than the impact),
     an output column with no value, a sigma column without its measured column
     or with a value <= 0, a file mixing scenes, a file that is not UTF-8 text
-    (a byte-order mark is fine), a semicolon-delimited file, and a directory.
-    Rows are named by their line number in the file.
+    (a byte-order mark is fine), a semicolon- or tab-delimited file, and a
+    directory.  Rows are named by the line of the file they start on.  ``#``
+    lines above the header are the provenance; a ``#`` line among the rows is
+    a commented-out row and is skipped.  Scene names are read as the scene
+    registry reads them (``Sphere-On-Incline`` is ``sphere_on_incline``).
     """
     path = os.fspath(path)
     lines = _read_lines(path)
@@ -243,13 +246,21 @@ def load_experiments(path: str | os.PathLike) -> ExperimentData:
         raise DataError(f"{path}: the file is empty (no header and no rows)")
     reader = csv.reader(lines[body_start:])
     header = [h.strip() for h in next(reader)]
-    if len(header) == 1 and ";" in header[0]:
-        raise DataError(
-            f"{path}, line {body_start + 1}: the header has no commas but "
-            "semicolons; the experiment format is comma-separated (save the "
-            "file as CSV with ',' as the delimiter and '.' as the decimal point)"
-        )
-    rows = [(body_start + 2 + k, r) for k, r in enumerate(reader) if any(r)]
+    for sep, name in ((";", "semicolons"), ("\t", "tabs")):
+        if len(header) == 1 and sep in header[0]:
+            raise DataError(
+                f"{path}, line {body_start + 1}: the header has no commas but "
+                f"{name}; the experiment format is comma-separated (save the "
+                "file as CSV with ',' as the delimiter and '.' as the decimal "
+                "point)"
+            )
+    # Rows by the file line they start on (a quoted field may span lines);
+    # a line starting with '#' among the rows is a commented-out row, skipped.
+    rows, consumed = [], reader.line_num
+    for r in reader:
+        first, consumed = body_start + consumed + 1, reader.line_num
+        if any(r) and not r[0].lstrip().startswith("#"):
+            rows.append((first, r))
     if not rows:
         raise DataError(f"{path}: header but no rows of data")
     if len(set(header)) != len(header):
@@ -299,7 +310,7 @@ def load_experiments(path: str | os.PathLike) -> ExperimentData:
             s = row[scene_idx].strip()
             if not s:
                 raise DataError(f"{path}, line {lineno}, column 'scene': empty")
-            scenes.add(s)
+            scenes.add(s.lower().replace("-", "_"))  # as scene names are read
         for j, col in columns.items():
             values[j].append(_cell(row[j], col, path, lineno))
     if len(scenes) > 1:
