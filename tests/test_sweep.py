@@ -256,6 +256,7 @@ def test_cli_one_axis_and_sample(tmp_path, capsys):
         (["--yield-strength", "0:1e9:5:log"], "--yield-strength: a log axis"),
         (["--velocity", "1,2", "--sample", "5"], "with --sample give a range"),
         (["--velocity", "1", "--chunk-size", "0"], "--chunk-size must be >= 1"),
+        (["--yield-strength", "1e8:1e9:3", "--law", "hertz"], "Hertz law is elastic"),
         (["--velocity", "0:1:3"], "velocity"),  # v = 0 is refused by the scene
     ],
 )

@@ -378,6 +378,11 @@ def _run(args) -> int:
 
     inputs, swept, log, shape = _build_inputs(args)
     check_normal_inputs(inputs)  # a bad value: ValueError naming it, no compile
+    if args.law == "hertz" and "yield_strength" in swept:
+        raise ValueError(
+            "--yield-strength: the Hertz law is elastic, its impacts do not "
+            "depend on the yield strength; sweep it with --law jackson-green"
+        )
     law = di.JacksonGreen() if args.law == "jackson-green" else di.Hertz()
     n = len(next(iter(inputs.values())))
     chunk = args.chunk_size or default_chunk_size()
