@@ -6,6 +6,9 @@ gradients against Richardson-extrapolated finite differences."""
 from __future__ import annotations
 
 import math
+import os
+import subprocess
+import sys
 
 import equinox as eqx
 import jax
@@ -249,3 +252,23 @@ def test_vmap_jit_rows_and_float32():
     assert float(v32) == pytest.approx(
         float(r64.extras["tangential_velocity_after"]), rel=1e-6
     )
+
+
+def test_float32_program_without_x64():
+    """A program that never enables float64 (a fresh process): the closed form
+    runs in float32, finite at 0 deg too (where cor_tangential is inf by
+    definition, which is not a loss of precision)."""
+    code = (
+        "import jax, jax.numpy as jnp, diffimpact as di\n"
+        "ex = di.Experiment.default('sphere_on_incline')\n"
+        "s = ex.scene\n"
+        "def f(a):\n"
+        "    sc = di.scenes.SphereOnIncline(s.mass, s.radius, s.body, s.flat, a, .29)\n"
+        "    r = di.simulate(sc, ex.law, friction=ex.friction, throw=False)\n"
+        "    return r.extras['angular_velocity_after'], r.result._value\n"
+        "w, codes = jax.jit(jax.vmap(f))(jnp.array([0.0, 0.5]))\n"
+        "assert w.dtype == jnp.float32 and bool(jnp.all(jnp.isfinite(w)))\n"
+        "assert codes.tolist() == [0, 0] and float(w[0]) == 0.0, (w, codes)\n"
+    )
+    env = {k: v for k, v in os.environ.items() if k != "JAX_ENABLE_X64"}
+    subprocess.run([sys.executable, "-c", code], check=True, env=env)
