@@ -51,23 +51,24 @@ def error(result, ref, v0):
 
 # Sliding throughout, stuck then re-slipping near separation (a stuck ball on a
 # slope always slips again once mu_s F_n falls below 2/7 m g sin(phi)), F-2,
-# and both sides of the critical angle (mu = 0.1: 30.74 / 30.76 deg, between
-# which the sharp contact stops sticking).
+# and 0.01 deg either side of the critical angle of mu = 0.1 (34.9888 deg, by
+# bisection on the closed form; Routh's rigid-body value for an elastic impact
+# without gravity, tan(phi_c) = 3.5 mu (1 + e) = 0.7, is 34.9920 deg).
 CASES = [
     (45.0, 0.05, None, ["slip"]),
     (5.0, 0.05, None, ["slip", "stick", "slip"]),
     (20.0, 0.2, None, ["slip", "stick", "slip"]),
     (45.0, 0.2, 0.3, ["slip", "stick", "slip"]),
-    (30.74, 0.1, None, ["slip", "stick", "slip"]),
-    (45.0, 0.1, None, ["slip"]),
+    (34.98, 0.1, None, ["slip", "stick", "slip"]),
+    (35.0, 0.1, None, ["slip"]),
 ]
 
 
 @pytest.mark.parametrize("deg, mu, mu_s, phases", CASES)
 def test_exact_matches_sharp_reference(deg, mu, mu_s, phases):
-    """Against the event-based reference at rtol 1e-13: measured 2e-13 ..
-    6e-11 of the impact speed (the smooth ODE at slip width 1e-7: 4e-12 ..
-    1.9e-9); the shortcut takes no ODE step."""
+    """Against the event-based reference at rtol 1e-13, the phases agreeing:
+    measured 2e-13 .. 6e-11 of the impact speed (the smooth ODE at slip width
+    1e-7: 4e-12 .. 1.9e-9); the shortcut takes no ODE step."""
     phi = math.radians(deg)
     k = sharp.hertz_stiffness(208e9, 0.3, 205e9, 0.29, R)
     ref, info = sharp.solve(
@@ -272,3 +273,23 @@ def test_float32_program_without_x64():
     )
     env = {k: v for k, v in os.environ.items() if k != "JAX_ENABLE_X64"}
     subprocess.run([sys.executable, "-c", code], check=True, env=env)
+
+
+def test_critical_angle_is_routh_s():
+    """Where the ball stops sticking: by bisection on the closed form's least
+    slip, against Routh's rigid-body angle for an elastic impact, tan(phi_c) =
+    3.5 mu (1 + e) with e = 1 (Hertz).  Gravity along the slope during the
+    contact moves it by about g T / v0 = 2.3e-4 at most (T = 56 us, v0 = 2.4
+    m/s); measured 9.1e-5 (34.98882 against 34.99202 deg)."""
+    least = jax.jit(
+        lambda a: di.simulate(ball(a), di.Hertz(), friction=di.Friction(0.1)).extras[
+            "min_slip_ratio"
+        ]
+    )
+    lo, hi = math.radians(30.0), math.radians(40.0)
+    assert float(least(lo)) == 0.0 and float(least(hi)) > 0.0
+    for _ in range(40):
+        mid = 0.5 * (lo + hi)
+        lo, hi = (mid, hi) if float(least(mid)) == 0.0 else (lo, mid)
+    routh = math.atan(3.5 * 0.1 * 2.0)
+    assert 0.0 < 1.0 - lo / routh < 2.3e-4
