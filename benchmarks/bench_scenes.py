@@ -64,12 +64,19 @@ import matplotlib
 import numpy as np
 import optimistix as optx
 from _report import machine_line, markdown_table
+from jax.flatten_util import ravel_pytree
 from scipy.integrate import solve_ivp
 
 import diffimpact as di
 from diffimpact._binding import _bind
 from diffimpact._normal_solve import _y0
-from diffimpact._planar_solve import _Planar, _planar_field, _separation, planar_setup
+from diffimpact._planar_solve import (
+    PlanarState,
+    _Planar,
+    _planar_field,
+    _separation,
+    planar_setup,
+)
 from diffimpact.scenes._base import NormalProblem
 
 jax.config.update("jax_enable_x64", True)  # diffimpact is validated in float64
@@ -363,24 +370,28 @@ class PlanarProblem:
     """``solve_planar``'s args, initial state and step-size mask for one case."""
 
     args: _Planar
-    y0: jax.Array
-    unchecked: tuple[int, ...]  # state indices left out of the error estimate
+    state: PlanarState  # the initial state, as diffimpact integrates it
+    y0: jax.Array  # the same, flattened (for scipy)
+    unravel: Callable  # flat vector -> PlanarState
+    unchecked: tuple[int, ...]  # flat indices left out of the error estimate
     max_time: float
 
 
 def planar_problem(scene, law, friction, settings: di.SolverSettings) -> PlanarProblem:
     """The set-up of ``diffimpact._planar_solve.solve_planar`` (its own
     ``planar_setup``), for a law without a running peak force."""
-    args, y0, weights, _ = planar_setup(scene, law, friction, settings)
+    args, state, weights, _ = planar_setup(scene, law, friction, settings)
     if args.bound.rate_dependent:
         raise NotImplementedError(
             "the peak-force state is error-weighted, not left out"
         )
-    unchecked = tuple(i for i, w in weights.items() if w == 0.0)
-    return PlanarProblem(args, y0, unchecked, settings.max_time)
+    y0, unravel = ravel_pytree(state)
+    flat_weights = np.asarray(ravel_pytree(weights)[0])
+    unchecked = tuple(int(i) for i in np.nonzero(flat_weights == 0.0)[0])
+    return PlanarProblem(args, state, y0, unravel, unchecked, settings.max_time)
 
 
-def final_outputs(args: _Planar, y, tau) -> dict:
+def final_outputs(args: _Planar, y: PlanarState, tau) -> dict:
     """The compared outputs from the state at separation (as ``solve_planar``)."""
     q, q_dot, _, _, _, v_n, _, _, _, _ = args.forces(y)
     report = args.scene.report(q, q_dot)
@@ -423,7 +434,7 @@ def _kvaerno_plain(y0, args, rtol, atol):
         max_steps=MAX_STEPS,
         throw=False,
     )
-    out = final_outputs(args, sol.ys[-1], sol.ts[-1])
+    out = final_outputs(args, jax.tree.map(lambda x: x[-1], sol.ys), sol.ts[-1])
     out["num_steps"] = sol.stats["num_steps"]
     out["ok"] = sol.result == diffrax.RESULTS.event_occurred
     return out
@@ -437,7 +448,7 @@ def bench_kvaerno_plain(
     for case in cases:
         prob = planar_problem(case.scene, LAW, case.friction, di.SolverSettings())
         for rtol in config.rtols:
-            args = (prob.y0, prob.args, jnp.asarray(rtol), jnp.asarray(rtol * 1e-2))
+            args = (prob.state, prob.args, jnp.asarray(rtol), jnp.asarray(rtol * 1e-2))
             out, times = time_jitted(_kvaerno_plain, args, config)
             family = "diffrax Kvaerno5, plain norm"
             if not out["ok"]:
@@ -476,11 +487,15 @@ def scipy_functions(case: Case) -> ScipyFunctions:
     """Jit the planar field, its Jacobian, the separation function and the
     outputs of one case, and wrap them for ``solve_ivp``."""
     prob = planar_problem(case.scene, LAW, case.friction, di.SolverSettings())
-    p = prob.args
-    rhs = jax.jit(lambda y: _planar_field(0.0, y, p))
-    jac = jax.jit(jax.jacfwd(lambda y: _planar_field(0.0, y, p)))
-    sep = jax.jit(lambda y: _separation(0.0, y, p))
-    final = jax.jit(lambda y, tau: final_outputs(p, y, tau))
+    p, unravel = prob.args, prob.unravel
+
+    def field(y):  # on the flat state scipy integrates
+        return ravel_pytree(_planar_field(0.0, unravel(y), p))[0]
+
+    rhs = jax.jit(field)
+    jac = jax.jit(jax.jacfwd(field))
+    sep = jax.jit(lambda y: _separation(0.0, unravel(y), p))
+    final = jax.jit(lambda y, tau: final_outputs(p, unravel(y), tau))
     calls = [0]
 
     def f(t, y):

@@ -158,24 +158,23 @@ def _solve(field, y0, args, settings, conds, directions, dense=False, weights=No
     """One diffrax solve that ends at the first of ``conds`` (real-valued,
     located by Newton so the end time is differentiable).
 
-    ``weights``: ``{state index: weight}`` scaling that state's share of the
-    step-size error estimate (diagnostic integrals that never feed back into
-    the dynamics: weight 0 leaves one out, a small weight loosens its
-    tolerance by that factor)."""
+    ``y0`` is an array or a pytree of arrays (the planar solve's
+    ``PlanarState``).  ``weights``: a pytree like ``y0`` scaling each state's
+    share of the step-size error estimate (diagnostic integrals that never
+    feed back into the dynamics: weight 0 leaves one out, a small weight
+    loosens its tolerance by that factor); None weighs every state alike."""
     # Tolerances no tighter than the state's dtype can honour: the float64
     # defaults (1e-11 / 1e-13) would stall a float32 solve, so they are
     # floored at 100 machine epsilons of the state (no effect in float64).
-    floor = 100.0 * float(jnp.finfo(y0.dtype).eps)
+    dtype = jnp.result_type(*jax.tree.leaves(y0))
+    floor = 100.0 * float(jnp.finfo(dtype).eps)
     rtol, atol = max(settings.rtol, floor), max(settings.atol, floor)
     event_tol = max(settings.event_tol, floor)
     norm = optx.rms_norm
-    if weights:
-        keep = jnp.ones(y0.shape, y0.dtype)
-        for i, w in weights.items():
-            keep = keep.at[i].set(w)
+    if weights is not None:
 
         def norm(err):
-            return optx.rms_norm(err * keep)
+            return optx.rms_norm(jax.tree.map(jnp.multiply, err, weights))
 
     adjoint = stored_steps_adjoint(settings.adjoint, settings.max_steps)
     event = diffrax.Event(
@@ -187,8 +186,8 @@ def _solve(field, y0, args, settings, conds, directions, dense=False, weights=No
     sol = diffrax.diffeqsolve(
         diffrax.ODETerm(field),
         settings.solver,
-        t0=jnp.zeros((), y0.dtype),
-        t1=jnp.asarray(settings.max_time, y0.dtype),
+        t0=jnp.zeros((), dtype),
+        t1=jnp.asarray(settings.max_time, dtype),
         dt0=None,
         y0=y0,
         args=args,

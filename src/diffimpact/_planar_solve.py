@@ -1,16 +1,16 @@
 """One impact of a planar rigid-body scene with friction (smooth method).
 
-The state, in the impact's own units (length ``d_ref``, time ``d_ref / v0`` of
-the normal problem with the effective normal mass ``1 / (J_n M^-1 J_n^T)``):
-
-    [dq / S (n), q_dot T / S (n), x_m, tau_load, (q_peak), (s_min),
-     normal impulse of compression / restitution, tangential impulse of
-     compression / restitution, normal work of compression / restitution]
-
-with ``S_i = d_ref / max(|J_n,i|, |J_t,i|)`` so that every coordinate moves
-O(1) during the contact.  The normal force is the same smooth-switched law as
-the 1-DOF path (``_simulate._smooth_force``); friction (F-1 or F-2) is the
-exact-hold law of :class:`Friction`, fed with the scene's holding force
+The state is a :class:`PlanarState` in the impact's own units (length
+``d_ref``, time ``d_ref / v0`` of the normal problem with the effective normal
+mass ``1 / (J_n M^-1 J_n^T)``): scaled coordinates and velocities ``q / S``,
+``q_dot T / S`` with ``S_i = d_ref / max(|J_n,i|, |J_t,i|)`` (so that every
+coordinate moves O(1) during the contact), the maximum compression and the
+loading time, the accumulated impulses and works, and only what the scene
+needs besides (the running peak force of a rate-dependent law, the running
+minimum slip with friction, the Mindlin spring's stretch with compliant
+friction; None otherwise).  The normal force is the same smooth-switched law
+as the 1-DOF path (``_normal_solve._smooth_force``); friction (F-1 or F-2) is
+the exact-hold law of :class:`Friction`, fed with the scene's holding force
 (:meth:`_Planar.holding_force`).
 
 Slip classification (with friction only): ``s(t) = sigma v_t(t) / v_ref`` is the
@@ -58,6 +58,20 @@ _PEAK_ERROR_WEIGHT = 1e-6
 _SPRING_RELAX = 20.0
 
 
+class PlanarState(eqx.Module):
+    """The planar solve's state (module docstring), every field scaled."""
+
+    q: jax.Array  # (n,) q - q0, in S
+    q_dot: jax.Array  # (n,) q_dot, in S / T
+    max_deflection: jax.Array  # d_m / d_ref
+    loading_time: jax.Array  # compression time / T
+    impulses: jax.Array  # (4,) normal and tangential, compression and restitution
+    works: jax.Array  # (2,) normal work of compression and of restitution
+    peak_force: jax.Array | None = None  # running peak / force unit
+    min_slip: jax.Array | None = None  # running minimum of s = sigma v_t / v_ref
+    spring: jax.Array | None = None  # Mindlin stretch / d_ref
+
+
 class _Planar(eqx.Module):
     """Everything the planar vector field needs, passed to diffrax as ``args``
     (never closed over: diffrax differentiates what it is given in ``args``
@@ -76,23 +90,17 @@ class _Planar(eqx.Module):
     work_unit: jax.Array
     slip_sign: jax.Array
     v_t0: jax.Array
-    # Compliant friction: 8 G* sqrt(R), with k_t = 8 G* sqrt(R d); the index of
-    # the spring's stretch in the state (-1: no spring).
+    # Compliant friction: 8 G* sqrt(R), with k_t = 8 G* sqrt(R d).
     shear_stiffness: jax.Array | None
     settings: object = eqx.field(static=True)
-    i_spring: int = eqx.field(static=True, default=-1)
 
-    @property
-    def n(self):
-        return self.q0.shape[0]
-
-    def forces(self, y):
-        n, sc = self.n, self.sc
-        q = self.q0 + y[:n] * self.scale_q
-        q_dot = y[n : 2 * n] * self.scale_q / sc.time
+    def forces(self, y: PlanarState):
+        sc = self.sc
+        q = self.q0 + y.q * self.scale_q
+        q_dot = y.q_dot * self.scale_q / sc.time
         d, j_n, j_t = self.scene.kinematics(q)
         v_n, v_t = j_n @ q_dot, j_t @ q_dot
-        d_m = y[2 * n] * sc.length
+        d_m = y.max_deflection * sc.length
         f_n = _smooth_force(self.bound, d, v_n, d_m, self.settings, self.v0)
         width = self.settings.slip_width * self.v0
         if self.friction is None:
@@ -103,7 +111,7 @@ class _Planar(eqx.Module):
         jvp = jax.jvp(lambda qq: self.scene.kinematics(qq)[2], (q,), (q_dot,))
         bias = jvp[1] @ q_dot
         if self.friction.compliant:
-            spring = -self.spring_stiffness(d) * y[self.i_spring] * sc.length
+            spring = -self.spring_stiffness(d) * y.spring * sc.length
             f_t = self.friction.spring_force(f_n, spring, v_t, width)
         else:
             hold = self.holding_force(j_n, j_t, f_n, bias)
@@ -119,7 +127,7 @@ class _Planar(eqx.Module):
         contact point's slip velocity while the spring force is below the cap
         ``mu F_n`` or unloading; 0 at the cap when loading further (gross
         slip); a stretch beyond the cap (the cap fell) relaxes back to it."""
-        delta = y[self.i_spring] * self.sc.length
+        delta = y.spring * self.sc.length
         u = _ratio(-self.spring_stiffness(d) * delta, self.friction.mu * f_n)
         at_cap = jax.nn.sigmoid((jnp.abs(u) - 1.0) / _HOLD_CORNER)
         width = self.settings.slip_width * self.v0
@@ -142,16 +150,12 @@ class _Planar(eqx.Module):
         return -free / (j_t @ (j_t * self.inv_mass))
 
 
-def _planar_field(t, y, p: _Planar):
-    n, sc, bound, settings = p.n, p.sc, p.bound, p.settings
+def _planar_field(t, y: PlanarState, p: _Planar) -> PlanarState:
+    sc, bound, settings = p.sc, p.bound, p.settings
     q, q_dot, d, j_n, j_t, v_n, v_t, f_n, f_t, bias = p.forces(y)
     q_ddot = (-j_n * f_n + j_t * f_t + p.gravity) * p.inv_mass
     s = step(v_n / p.v0, settings.velocity_width)
-    parts = [
-        y[n : 2 * n],
-        q_ddot * sc.time**2 / p.scale_q,
-        jnp.stack([s * v_n * sc.time / sc.length, s]),
-    ]
+    peak = min_slip = spring = None
     if bound.rate_dependent:
 
         def force_fn(dd, vv):
@@ -161,39 +165,37 @@ def _planar_field(t, y, p: _Planar):
         # sphere on a plane but not for a rotating link or bar.
         j_n_dot = jax.jvp(lambda qq: p.scene.kinematics(qq)[1], (q,), (q_dot,))[1]
         acc = j_n @ q_ddot + j_n_dot @ q_dot
-        parts.append(_peak_rate(force_fn, f_n, y[2 * n + 2], d, v_n, acc, sc)[None])
+        peak = _peak_rate(force_fn, f_n, y.peak_force, d, v_n, acc, sc)
     if p.friction is not None:
         # Running minimum of s = sigma v_t / v_ref, with
         # dv_t/dt = J_t q_ddot + (dJ_t/dt) q_dot.
         s_dot = p.slip_sign * (j_t @ q_ddot + bias) * sc.time / p.v0
         s_now = p.slip_sign * v_t / p.v0
-        s_min = y[2 * n + 2 + (1 if bound.rate_dependent else 0)]
-        at_min = step(s_min - s_now, _SLIP_MIN_WIDTH)
-        parts.append((jnp.minimum(s_dot, 0.0) * at_min)[None])
+        at_min = step(y.min_slip - s_now, _SLIP_MIN_WIDTH)
+        min_slip = jnp.minimum(s_dot, 0.0) * at_min
         if p.friction.compliant:
-            parts.append(p.spring_rate(y, d, f_n, v_t)[None])
+            spring = p.spring_rate(y, d, f_n, v_t)
     rate = sc.time / p.impulse_unit
-    parts.append(
-        jnp.stack(
-            [
-                s * f_n * rate,
-                (1.0 - s) * f_n * rate,
-                s * f_t * rate,
-                (1.0 - s) * f_t * rate,
-                s * f_n * v_n * sc.time / p.work_unit,
-                -(1.0 - s) * f_n * v_n * sc.time / p.work_unit,
-            ]
-        )
+    return PlanarState(
+        q=y.q_dot,
+        q_dot=q_ddot * sc.time**2 / p.scale_q,
+        max_deflection=s * v_n * sc.time / sc.length,
+        loading_time=s,
+        impulses=rate * jnp.stack([s * f_n, (1.0 - s) * f_n, s * f_t, (1.0 - s) * f_t]),
+        works=jnp.stack([s * f_n * v_n, -(1.0 - s) * f_n * v_n])
+        * sc.time
+        / p.work_unit,
+        peak_force=peak,
+        min_slip=min_slip,
+        spring=spring,
     )
-    return jnp.concatenate(parts)
 
 
-def _separation(t, y, p: _Planar, **kw):
-    n = p.n
-    d = p.scene.kinematics(p.q0 + y[:n] * p.scale_q)[0]
+def _separation(t, y: PlanarState, p: _Planar, **kw):
+    d = p.scene.kinematics(p.q0 + y.q * p.scale_q)[0]
     d_r = 0.0
     if p.bound.hysteretic:
-        d_r = p.bound.residual_deflection(y[2 * n] * p.sc.length)
+        d_r = p.bound.residual_deflection(y.max_deflection * p.sc.length)
     return (d - d_r) / p.sc.length
 
 
@@ -202,7 +204,6 @@ def planar_setup(scene, law, friction, settings):
     ``_solve(_planar_field, y0, args, ..., weights=weights)`` (also used by
     benchmarks/bench_scenes.py to hand scipy exactly the same problem)."""
     q0, q_dot0 = scene.initial_state()
-    n = q0.shape[0]
     inv_mass = 1.0 / scene.mass_diagonal()
     _, j_n0, j_t0 = scene.kinematics(q0)
     v0 = j_n0 @ q_dot0
@@ -229,17 +230,15 @@ def planar_setup(scene, law, friction, settings):
     t_unit = sc.time
     impulse_unit = normal_mass * v0
     work_unit = normal_mass * v0**2
-    hist = 2 * n  # index of x_m
     has_friction = friction is not None
     compliant = has_friction and friction.compliant
-    i_spring, shear_stiffness = -1, None
+    shear_stiffness = None
     if compliant:
         if contact.shear_modulus is None:
             raise ValueError(
                 "`Friction(compliant=True)` needs the contact's shear modulus: "
                 "the scene's contact() must come from materials"
             )
-        i_spring = hist + 3 + (1 if bound.rate_dependent else 0)
         shear_stiffness = (
             8.0 * contact.shear_modulus * jnp.sqrt(contact.effective_radius)
         )
@@ -259,56 +258,53 @@ def planar_setup(scene, law, friction, settings):
         v_t0=v_t0,
         shear_stiffness=shear_stiffness,
         settings=settings,
-        i_spring=i_spring,
     )
-    i_slip = hist + 2 + (1 if bound.rate_dependent else 0)  # s_min, if any
-    n_extra = 2 + (1 if bound.rate_dependent else 0) + (1 if has_friction else 0) + 6
-    n_extra += 1 if compliant else 0
-    y0 = jnp.concatenate(
-        [
-            jnp.zeros(n, v0.dtype),
-            q_dot0 * t_unit / scale_q,
-            jnp.zeros(n_extra, v0.dtype),
-        ]
+    zero = jnp.zeros_like(v0)
+    y0 = PlanarState(
+        q=jnp.zeros_like(q0),
+        q_dot=q_dot0 * t_unit / scale_q,
+        max_deflection=zero,
+        loading_time=zero,
+        impulses=jnp.zeros(4, v0.dtype),
+        works=jnp.zeros(2, v0.dtype),
+        peak_force=zero if bound.rate_dependent else None,
+        min_slip=slip_sign * v_t0 / v0 if has_friction else None,
+        spring=zero if compliant else None,
     )
-    if has_friction:
-        y0 = y0.at[i_slip].set(slip_sign * v_t0 / v0)
     # The running peak force and the running minimum slip are diagnostics
     # with 1e-9-wide switches that never feed back.  Fully error-controlled,
     # the peak force alone dictates the steps (HC incline: 288 steps against
     # 124); left out, it is 2e-3 off.  Its tolerance is loosened 1e6-fold
     # instead: 126 steps, 4.7e-5 off (measured, HC e = 0.7, 45 deg).  The slip
     # minimum is left out (noise ~3e-5 slip widths, see `critical_angles`).
-    weights = {}
+    weights = jax.tree.map(jnp.ones_like, y0)
     if bound.rate_dependent:
-        weights[hist + 2] = _PEAK_ERROR_WEIGHT
+        weights = eqx.tree_at(
+            lambda w: w.peak_force, weights, jnp.full_like(zero, _PEAK_ERROR_WEIGHT)
+        )
     if has_friction:
-        weights[i_slip] = 0.0
+        weights = eqx.tree_at(lambda w: w.min_slip, weights, zero)
     return p, y0, weights, inside
 
 
 def solve_planar(scene, law, friction, settings):
     p, y0, weights, inside = planar_setup(scene, law, friction, settings)
-    n, sc, bound = p.n, p.sc, p.bound
-    hist = 2 * n  # index of x_m
-    i_slip = hist + 2 + (1 if bound.rate_dependent else 0)  # s_min, if any
+    sc, bound = p.sc, p.bound
     t_unit, impulse_unit, work_unit = sc.time, p.impulse_unit, p.work_unit
     v0, v_t0, slip_sign = p.v0, p.v_t0, p.slip_sign
-    has_friction = friction is not None
     sol, solved = _solve(
         _planar_field, y0, p, settings, _separation, False, weights=weights
     )
     tau_end, separated = _event_time(sol)
-    y = sol.ys[-1]
+    y = jax.tree.map(lambda x: x[-1], sol.ys)
     q, q_dot, _, j_n, j_t, v_n, v_t, _, _, _ = p.forces(y)
-    acc = y[-6:]
-    i_comp, i_rest = acc[0] * impulse_unit, acc[1] * impulse_unit
-    w_comp, w_rest = acc[4] * work_unit, acc[5] * work_unit
-    d_m = y[hist] * sc.length
+    i_comp, i_rest, t_comp, t_rest = y.impulses * impulse_unit
+    w_comp, w_rest = y.works * work_unit
+    d_m = y.max_deflection * sc.length
     contact_time = tau_end * t_unit
-    compression_time = y[hist + 1] * t_unit
+    compression_time = y.loading_time * t_unit
     max_force = (
-        y[hist + 2] * sc.force if bound.rate_dependent else bound.peak_force(d_m)
+        y.peak_force * sc.force if bound.rate_dependent else bound.peak_force(d_m)
     )
     extras = {
         "tangential_velocity_contact_before": v_t0,
@@ -319,13 +315,13 @@ def solve_planar(scene, law, friction, settings):
         "cor_tangential": jnp.where(
             v_t0 != 0, v_t / jnp.where(v_t0 != 0, v_t0, 1.0), jnp.inf
         ),
-        "tangential_impulse_compression": acc[2] * impulse_unit,
-        "tangential_impulse_restitution": acc[3] * impulse_unit,
+        "tangential_impulse_compression": t_comp,
+        "tangential_impulse_restitution": t_rest,
         **scene.report(q, q_dot),
     }
-    if has_friction:
+    if friction is not None:
         extras.update(
-            _slip_extras(y[i_slip], slip_sign * v_t / v0, v_t0, friction, settings)
+            _slip_extras(y.min_slip, slip_sign * v_t / v0, v_t0, friction, settings)
         )
     fields = result_fields(
         contact_time=contact_time,
