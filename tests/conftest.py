@@ -90,3 +90,16 @@ def sharp_reference():
         module = sys.modules[name] = importlib.util.module_from_spec(spec)
         spec.loader.exec_module(module)
     return sys.modules[name]
+
+
+@pytest.fixture(autouse=True, scope="module")
+def _release_compiled_programs():
+    """Drop JAX's in-memory caches after each test module.  A worker compiles
+    thousands of programs (eager operations included), each XLA CPU
+    executable holds a few memory maps (4 for a tiny one, measured), and a
+    process near the kernel's limit (vm.max_map_count, 65,530 by default)
+    crashes inside the compiler: seen three times as a segfault in
+    backend_compile late in a quiet fresh-clone run.  What a later module
+    needs again is loaded from the persistent cache."""
+    yield
+    jax.clear_caches()
