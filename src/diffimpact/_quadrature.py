@@ -188,9 +188,7 @@ def normal_timeline(problem, bound, settings) -> Timeline:
         t_pl, a, s_lo, w_top = 0.0, d_m, 0.0, 0.0
 
     def drop_el(s):  # s in [s_lo, 1], d = d_m (1 - s^2) in [0, a]
-        # (d - a) / a, exact; >= -1 (d >= 0) also where rounding would pass it
-        # at s = 1 (the Gauss nodes stay inside)
-        rel = jnp.maximum(d_m * (s_lo * s_lo - s * s) / a, -1.0)
+        rel = d_m * (s_lo * s_lo - s * s) / a  # (d - a) / a, exact
         w_diff = -k / (n + 1.0) * a ** (n + 1.0) * jnp.expm1((n + 1.0) * jnp.log1p(rel))
         return w_top + w_diff - m * g * d_m * s * s
 
@@ -220,18 +218,8 @@ def normal_timeline(problem, bound, settings) -> Timeline:
         )
 
     t_un = _travel_time(stroke, drop_un, m, order)
-    # Loading pieces (delta, drop, lo, hi, active): plastic on [0, s_s],
-    # elastic on [s_s, 1] (on [0, 1] when nothing yields).
-    elastic = (d_m, drop_el, s_lo, 1.0, True)
-    if two_phase:
-        pieces = ((d_m_pl, drop_pl, 0.0, s_s, plastic), elastic)
-        forces = (f_el, f_pl, d_s)
-    else:
-        pieces = (elastic,)
-        forces = (f_el, f_el, jnp.inf)
     return Timeline(
         mass=m,
-        approach_velocity=v0,
         max_deflection=d_m,
         residual_deflection=d_r,
         peak_force=f_m,
@@ -241,8 +229,6 @@ def normal_timeline(problem, bound, settings) -> Timeline:
         rebound_velocity=v_out,
         separates=separates,
         order=order,
-        pieces=pieces,
-        forces=forces,
         drop_unloading=drop_un,
     )
 
@@ -251,11 +237,9 @@ class Timeline:
     """A normal impact solved by :func:`normal_timeline`, and its state along
     the way (built and used inside one trace; not a pytree).
 
-    Loading is parametrised by ``s`` in ``[0, 1]``, ``d = d_m (1 - s^2)``
-    (``s = 1`` at first contact, 0 at maximum compression); restitution by
-    ``r`` in ``[0, 1]``, ``d = d_m - (d_m - d_r) r^2`` (0 at maximum
-    compression, 1 at separation).  Times are measured from first contact;
-    the normal velocity ``v_n`` is positive while approaching."""
+    Restitution is parametrised by ``r`` in ``[0, 1]``, ``d = d_m - (d_m -
+    d_r) r^2`` (0 at maximum compression, 1 at separation); the normal
+    velocity ``v_n`` is positive while approaching."""
 
     def __init__(self, **fields):
         self.__dict__.update(fields)
@@ -267,42 +251,6 @@ class Timeline:
     @property
     def stroke(self):
         return self.max_deflection - self.residual_deflection
-
-    def loading_time_left(self, s):
-        """Time from the loading point ``s`` to maximum compression, piece by
-        piece (each a smooth Gauss rule: the speed has a kink at the switch).
-        A piece not reached (``s <= lo``) is evaluated over its full span and
-        masked, so that no Gauss rule sits on the singular ``v = 0`` point."""
-        total = 0.0
-        for delta, drop, lo, hi, active in self.pieces:
-            reached = s - lo > 1e-12
-            end = jnp.where(reached, jnp.minimum(s, hi), hi)
-            t = _travel_time(delta, drop, self.mass, self.order, lo, end)
-            total = total + jnp.where(reached & active, t, 0.0)
-        return total
-
-    def loading_velocity(self, s):
-        """``v_n`` (> 0) at the loading point ``s`` (at ``s = 1`` exactly
-        ``v0``, where the potential's log form has no derivative)."""
-        start = s > 1.0 - 1e-12
-        drop = self.drop_at(jnp.where(start, 0.5, s))
-        return jnp.where(
-            start, self.approach_velocity, safe_sqrt(2.0 * drop / self.mass)
-        )
-
-    def drop_at(self, s):
-        """The potential drop ``U(d_m) - U(d)`` [J] at the loading point ``s``."""
-        value = jnp.zeros_like(self.max_deflection * s)
-        for _, drop, lo, hi, active in self.pieces:
-            inside = (s >= lo) & active
-            value = jnp.where(inside, drop(jnp.clip(s, lo, hi)), value)
-        return value
-
-    def loading_force(self, s):
-        """The contact force at the loading point ``s`` [N]."""
-        d = self.max_deflection * (1.0 - s * s)
-        f_el, f_pl, d_s = self.forces
-        return jnp.where(d > d_s, f_pl(jnp.maximum(d, d_s)), f_el(jnp.minimum(d, d_s)))
 
     def restitution_travel(self, lo, hi=1.0):
         """Time to travel the restitution points ``[lo, hi]`` (0 for an empty
