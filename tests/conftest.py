@@ -37,6 +37,15 @@ RADIUS = 5e-3
 MASS = 4.0 / 3.0 * math.pi * RADIUS**3 * 7850.0
 
 
+# The ball-prism ball of data.md A (19 mm bearing ball dropped 0.29 m on a
+# hard prism), the ball of the sharp stick/slip reference's tests.
+BALL = di.Material(208e9, 0.3, 2e9)
+PRISM = di.Material(205e9, 0.29, 2e9)
+BALL_RADIUS = 9.5e-3
+BALL_MASS = 4.0 / 3.0 * math.pi * BALL_RADIUS**3 * 7850.0
+DROP_HEIGHT = 0.29
+
+
 def steel(yield_strength=300e6, youngs_modulus=210e9, poisson_ratio=0.3):
     return di.Material(youngs_modulus, poisson_ratio, yield_strength, 7850.0)
 

@@ -7,19 +7,23 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
-from conftest import rel, sharp_reference
+from conftest import (
+    BALL,
+    BALL_MASS,
+    BALL_RADIUS,
+    DROP_HEIGHT,
+    PRISM,
+    rel,
+    sharp_reference,
+)
 from scipy.optimize import brentq
 
 import diffimpact as di
 
 sharp = sharp_reference()
 
-# data.md A: 19 mm bearing ball on a hard prism, dropped 0.29 m.
-BALL = di.Material(208e9, 0.3, 2e9)
-PRISM = di.Material(205e9, 0.29, 2e9)
-R = 9.5e-3
-M = 4.0 / 3.0 * math.pi * R**3 * 7850.0
-H = 0.29
+# The data.md A ball on the prism (conftest).
+R, M, H = BALL_RADIUS, BALL_MASS, DROP_HEIGHT
 # data.md B: the xi = 1/8 bar on AISI 1045, dropped 0.3 m.
 BAR = di.Material(200.83e9, 0.3, 230.63e6)
 PLATE = di.Material(205e9, 0.29, 355e6)

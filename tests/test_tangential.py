@@ -15,19 +15,14 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
-from conftest import sharp_reference
+from conftest import BALL, BALL_MASS, BALL_RADIUS, DROP_HEIGHT, PRISM, sharp_reference
 
 import diffimpact as di
 
 sharp = sharp_reference()
 
-# data.md A: 19 mm bearing ball on a hard prism, dropped 0.29 m (Hertz: the
-# sharp reference integrates F = K d^1.5 with the same K).
-BALL = di.Material(208e9, 0.3, 2e9)
-PRISM = di.Material(205e9, 0.29, 2e9)
-R = 9.5e-3
-M = 4.0 / 3.0 * math.pi * R**3 * 7850.0
-H = 0.29
+# The data.md A ball on the prism (conftest).
+R, M, H = BALL_RADIUS, BALL_MASS, DROP_HEIGHT
 VELOCITIES = (
     "normal_velocity_after",
     "tangential_velocity_after",
