@@ -14,7 +14,7 @@ arrays::
 Without it every solve runs in float32, with tolerances floored at what
 float32 can honour: outputs agree with float64 to about 5e-4 (relative), and a
 solve whose float32 precision breaks down reports ``RESULTS.precision_lost``
-instead of returning NaN.  :func:`fit` needs float64 and says so.
+instead of returning NaN.  `fit` needs float64 and says so.
 """
 
 from . import scenes as scenes

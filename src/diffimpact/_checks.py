@@ -1,12 +1,12 @@
 """Input validation that holds eagerly and under ``jit``, ``vmap`` and ``grad``.
 
 A module whose numbers have a domain (a modulus > 0, a Poisson ratio in
-(-1, 0.5), ...) derives from :class:`AbstractValidated` and lists its checks
+(-1, 0.5), ...) derives from `AbstractValidated` and lists its checks
 in ``_checks()``.  They run twice, with the same message:
 
 - at construction, when the values are concrete: ``ValueError`` naming the
   field and the expected form, before anything is traced or solved;
-- at the entry of every solve (:func:`guard`), which threads the whole input
+- at the entry of every solve (`guard`), which threads the whole input
   pytree through one ``equinox.branched_error_if``.  The solve then reads the
   guarded values, so the check cannot be removed as dead code (an
   ``equinox.error_if`` whose return value is unused is dropped by JAX), and
@@ -107,7 +107,7 @@ def nonnegative(x, name: str, unit: str = "") -> Check:
 
 def raise_failed(checks: Iterable[Check]) -> None:
     """Raise ``ValueError`` for the first concrete check that fails (traced
-    checks are skipped: :func:`guard` handles them)."""
+    checks are skipped: `guard` handles them)."""
     for c in checks:
         if _is_traced(c.ok) or _is_traced(c.value):
             continue
@@ -146,7 +146,7 @@ class AbstractValidated(eqx.Module):
 @functools.cache
 def _module_fields(cls) -> tuple:
     """``(name, classes, optional)`` of the fields of ``cls`` annotated with
-    :class:`AbstractValidated` subclasses (``Material``, ``Material | None``)."""
+    `AbstractValidated` subclasses (``Material``, ``Material | None``)."""
     try:
         hints = typing.get_type_hints(cls)
     except Exception:  # an annotation that does not resolve: nothing to check
@@ -167,7 +167,7 @@ def _module_fields(cls) -> tuple:
 
 
 def collect_checks(tree) -> list[Check]:
-    """Every check of every :class:`AbstractValidated` module inside ``tree``."""
+    """Every check of every `AbstractValidated` module inside ``tree``."""
     out: list[Check] = []
 
     def visit(node):

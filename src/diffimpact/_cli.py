@@ -1,6 +1,6 @@
 """Command line: ``diffimpact demo`` and ``diffimpact simulate``.
 
-The CLI only calls the public API (style.md, habit 9).
+The CLI only calls the public API .
 """
 
 from __future__ import annotations
@@ -479,7 +479,7 @@ def compilation_cache_dir() -> str | None:
 
 def use_compilation_cache() -> str | None:
     """Turn on JAX's persistent compilation cache at
-    :func:`compilation_cache_dir` (every program, however quick to compile:
+    `compilation_cache_dir` (every program, however quick to compile:
     a cold run compiles dozens); returns the folder, or None."""
     import jax
 

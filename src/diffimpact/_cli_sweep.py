@@ -11,7 +11,7 @@ Each swept input is given as one of::
 
 Without ``--sample`` the sweep is the Cartesian product of all given axes (one
 CSV row per combination); with ``--sample N`` it is ``N`` random rows.  Inputs
-not given take the defaults of :data:`diffimpact._sweep.NORMAL_DEFAULTS` (a
+not given take the defaults of `diffimpact._sweep.NORMAL_DEFAULTS` (a
 5 mm steel sphere on the same steel, 1 m/s).  Each impact is solved by
 ``method="quadrature"`` (exact to about 1e-11), in chunks over every device
 JAX sees.

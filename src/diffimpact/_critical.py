@@ -113,7 +113,7 @@ def _brent(f, xa, xb, fa, fb, xtol, max_iter):
 def _implicit_root(grad_fn, x, args):
     """``x``, a root of ``g(x, args) = 0`` found outside JAX, with the implicit
     derivative ``dx = -(dg/dargs . dargs) / (dg/dx)`` (the rule of
-    :func:`diffimpact._root.newton_root`, linear in the tangents, so it
+    `diffimpact._root.newton_root`, linear in the tangents, so it
     transposes for reverse mode).  ``grad_fn(x, varied, fixed)`` returns
     ``(dg/dx, dg/dvaried)``; only the leaves of ``args`` with a nonzero tangent
     are differentiated (e.g. for ``d angle / d mu`` the law's calibration solve
@@ -166,11 +166,11 @@ def critical_angles(
       ``lambda a: scenes.FreeBar(m, bar, flat, h, angle=a)``).  It may close
       over traced values (it is closure-converted), so derivatives with respect
       to a scene parameter flow too.
-    - `law`, `friction`: the normal law and the :class:`Friction`.
+    - `law`, `friction`: the normal law and the `Friction`.
     - `angles`: a 1-D increasing grid of angles [rad] (concrete).  Each
       interval where the indicator changes sign holds one reported root; the
       grid must be fine enough to separate neighbouring roots.
-    - `settings`: :class:`SolverSettings` (default: the defaults).
+    - `settings`: `SolverSettings` (default: the defaults).
     - `level`: the switching level in slip widths (default: see below).
     - `xtol`, `max_iter`: stopping rule of the bracketing search [rad] (the
       indicator is noisy at ~3e-5 slip widths, ~5e-9 rad for the ball: a
@@ -188,7 +188,7 @@ def critical_angles(
       exponentially), so ``s`` stays >= 0 and the switch is taken at a level
       inside the band: for a contact whose tangential motion decouples from the
       normal one (``J_t M^-1 J_n^T = 0``, the ball), the exact-hold law of
-      :class:`Friction` is full Coulomb down to ``|v_t| = eps`` and linear
+      `Friction` is full Coulomb down to ``|v_t| = eps`` and linear
       below, ``dv_t/dP = -c v_t / eps`` per unit normal impulse, so where the
       sharp law ends at zero slip the smooth one ends at ``exp(-1)`` widths.
       Default level: 0.368 (gravity and coupling leave an O(eps) bias).

@@ -14,7 +14,7 @@ were made) and are kept with the data.  Columns:
 - uncertainties (optional): ``sigma_<quantity>_<unit>``, one standard deviation
   of a measured output, in any unit of its dimension.
 
-:data:`QUANTITIES` lists every quantity with its dimension, and :data:`UNITS`
+`QUANTITIES` lists every quantity with its dimension, and `UNITS`
 every unit with its factor to SI.  The loader converts everything to SI.
 """
 
@@ -220,7 +220,7 @@ class ExperimentData:
 def load_experiments(path: str | os.PathLike) -> ExperimentData:
     """Read and validate an experiment CSV (schema in this module's docstring).
 
-    Raises :class:`DataError` (a ``ValueError``) naming the file, the row (the
+    Raises `DataError` (a ``ValueError``) naming the file, the row (the
     line number in the file) and the column for: an empty file, no header or no
     rows, an unknown column or unit, a missing required value, a non-number, a
     negative value of a quantity that cannot be negative, a physically
@@ -365,7 +365,7 @@ def load_experiments(path: str | os.PathLike) -> ExperimentData:
 
 def _read_lines(path: str) -> list[str]:
     """The file's lines, decoded as UTF-8 (a byte-order mark, as spreadsheet
-    programs write, is dropped); a clear :class:`DataError` otherwise."""
+    programs write, is dropped); a clear `DataError` otherwise."""
     if os.path.isdir(path):
         raise DataError(f"{path}: is a directory; give the path of a CSV file")
     try:

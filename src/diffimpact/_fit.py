@@ -5,7 +5,7 @@ measured output ``k`` in row ``i`` is ``(predicted - measured) / sigma``, with
 ``sigma`` from the file's ``sigma_`` columns or, for an output without one, the
 RMS of that output's measurements (relative residuals, so that a contact time in
 microseconds and a COR of 0.5 weigh alike).  Free parameters are chosen by name
-and mapped to an unconstrained space by :mod:`._transforms` (log by default).
+and mapped to an unconstrained space by `._transforms` (log by default).
 
 The default optimiser is Levenberg-Marquardt (``optimistix``); ``"adam"`` and
 ``"lbfgs"`` (``optax``) minimise half the sum of squares instead, for large or
@@ -13,7 +13,7 @@ stochastic problems.  At the optimum the Jacobian gives the covariance
 ``s^2 (J^T J)^-1`` (``s^2 = 1`` when every output has measured uncertainties,
 else the reduced chi-square, as scipy's ``curve_fit`` does), standard errors and
 correlations; a (nearly) rank-deficient Jacobian raises an
-:class:`IdentifiabilityWarning` naming the parameter combination the data cannot
+`IdentifiabilityWarning` naming the parameter combination the data cannot
 determine, and the covariance then shows it (huge errors, correlation +-1)
 instead of a confident wrong answer.
 """
@@ -78,7 +78,7 @@ class IdentifiabilityWarning(UserWarning):
 
 @dataclasses.dataclass(frozen=True)
 class FitResult:
-    """The outcome of :func:`fit` (numbers in SI units, numpy arrays).
+    """The outcome of `fit` (numbers in SI units, numpy arrays).
 
     - `names`, `values`, `std_errors`, `start`: per free parameter;
     - `covariance`, `correlation`: ``(p, p)``;
@@ -92,7 +92,7 @@ class FitResult:
     - `iterations`, `converged`, `solver`, `seconds`;
     - `singular_values`: of the Jacobian w.r.t. the unconstrained parameters;
     - `warnings`: identifiability and convergence messages;
-    - `experiment`: the :class:`Experiment` with the fitted values in place.
+    - `experiment`: the `Experiment` with the fitted values in place.
     """
 
     names: tuple[str, ...]
@@ -270,8 +270,8 @@ def fit(
 
     **Arguments:**
 
-    - `data`: a path to an experiment CSV or an :class:`ExperimentData`.
-    - `experiment`: an :class:`Experiment`, a scene name (its defaults), or None
+    - `data`: a path to an experiment CSV or an `ExperimentData`.
+    - `experiment`: an `Experiment`, a scene name (its defaults), or None
       (the scene named in the file, with its defaults).
     - `free`: parameter names (``"mu"``, ``"mu_v"``, ``"yield_strength"``, a law
       field such as ``"ep_exponent"``, or a dotted path); the rest stay fixed.
@@ -284,7 +284,7 @@ def fit(
       unconstrained parameters, i.e. relative changes); `learning_rate` for adam.
     - `progress`: print a progress bar to stderr.
 
-    **Returns:** a :class:`FitResult`.
+    **Returns:** a `FitResult`.
     """
     if not jax.config.jax_enable_x64:
         raise RuntimeError(

@@ -57,7 +57,7 @@ class ContactProperties(eqx.Module):
     - `shear_modulus`: ``G* = 1 / ((2 - nu1)/G1 + (2 - nu2)/G2)`` [Pa], ``G_k =
       E_k / (2 (1 + nu_k))``, the effective shear modulus of Mindlin's
       tangential stiffness ``k_t = 8 G* a`` (Mindlin 1949; Johnson, *Contact
-      Mechanics*, 1985, section 7.2; physics.md is silent on it).  None where
+      Mechanics*, 1985, section 7.2).  None where
       the pair is not built from materials.
     """
 
@@ -106,7 +106,7 @@ def contact_properties(
     """Effective properties of ``body`` (radius ``radius1``) on ``other`` (G-1..G-3).
 
     ``S_y`` and the Poisson ratio of JG-1 are those of the weaker material (the
-    one with the lower yield strength), as physics.md (G-3) prescribes.
+    one with the lower yield strength), as (G-3) prescribes.
     """
     weaker_is_body = body.yield_strength <= other.yield_strength
     return ContactProperties(

@@ -1,14 +1,14 @@
-"""Repeated impacts over a time span: one diffrax solve (issue 7).
+"""Repeated impacts over a time span: one diffrax solve.
 
-:func:`simulate_span` integrates a mechanism (``scenes.BouncingBar``,
-``scenes.SliderCrank``, or any :class:`~diffimpact.scenes.AbstractMechanism`)
+`simulate_span` integrates a mechanism (``scenes.BouncingBar``,
+``scenes.SliderCrank``, or any `diffimpact.scenes.AbstractMechanism`)
 from ``t0`` to ``t1``: free flight and every contact that opens and closes on
 the way, in **one** ``diffeqsolve`` with an adaptive step.  No event stops the
 solve and no step size is prescribed: the contact force is a function of the
 state that is exactly zero out of contact and grows as ``d^n`` in it (C^1 for
 ``n > 1``), so the error controller itself shrinks the step around a contact
-and lets it grow in free flight (the ADAMS study of data.md C had to fix 2e-5 s
-by hand).
+and lets it grow in free flight (the MSC ADAMS study of impact parameters
+had to fix 2e-5 s by hand).
 
 **Equations of motion** (Lagrange, from the scene's weighted coordinates
 ``r(q)`` and weights ``w``; see ``scenes/_mechanisms.py``)::
@@ -22,8 +22,8 @@ refused: its damping would belong to one impact only).  ``F_n`` is the law's
 loading force (IM-1 for ``AdamsImpact``, H-1 for ``Hertz``), zero for
 ``d <= 0`` by gradient-safe powers.  A hysteretic law (Jackson-Green) carries
 its maximum compression ``d_m`` per contact as state, with the smooth
-loading/unloading switch of the single-impact solver (physics.md section 4);
-see :func:`_history_rate` for how ``d_m`` is forgotten between impacts.
+loading/unloading switch of the single-impact solver (docs/physics/contact.md);
+see `_history_rate` for how ``d_m`` is forgotten between impacts.
 Friction is F-1 with ``sgn -> tanh(v_t / (slip_width * speed))``.
 
 **Accumulated states** (so that the energy balance can be checked and impacts
@@ -83,7 +83,7 @@ _STATE_BOUND = 1e6
 
 
 class SpanSettings(eqx.Module):
-    """Numerical settings of :func:`simulate_span`.
+    """Numerical settings of `simulate_span`.
 
     The solve runs on the scene's reference scales (``scene.scales()``:
     coordinates, time, speed, energy), so the state is O(1).
@@ -93,7 +93,7 @@ class SpanSettings(eqx.Module):
     - `solver`: a diffrax solver (default ``Dopri8``; benchmarks/bench_multi.py
       compares ``Tsit5``).
     - `rtol`, `atol`: tolerances of the PID step-size controller on the scaled
-      state.  As for :class:`SolverSettings` the default 1e-11 is set by the
+      state.  As for `SolverSettings` the default 1e-11 is set by the
       gradients: against central differences of a 1e-13 solve, the slider
       crank's first-impact gradients (clearance, stiffness, friction) agree to
       3e-5 at 1e-11 and to 9e-5 at 1e-10 (values agree far better).
@@ -104,11 +104,11 @@ class SpanSettings(eqx.Module):
       exceed it; then only the first ``max_impacts`` are listed).
     - `velocity_width`, `phase_width`: widths of the loading/unloading and
       elastic/plastic switches of hysteretic laws (as in
-      :class:`SolverSettings`; the velocity one is a fraction of the scene's
+      `SolverSettings`; the velocity one is a fraction of the scene's
       reference speed).
     - `slip_width`: width of the smooth ``sgn(v_t)`` of friction, as a fraction
       of the reference speed.
-    - `adjoint`: as in :class:`SolverSettings`.
+    - `adjoint`: as in `SolverSettings`.
     """
 
     solver: diffrax.AbstractSolver = eqx.field(static=True, default=diffrax.Dopri8())
@@ -153,7 +153,7 @@ class SpanHistory(eqx.Module):
       `contact_energy` ``sum V_c`` [J]; `impulse` ``(N, c)`` [N s].
     - `energy_error`: ``T + V - E0 - W_a + W_n + W_f`` [J] (zero for an exact
       solve).
-    - `outputs`: the scene's :meth:`report` (dict of ``(N, ...)`` arrays).
+    - `outputs`: the scene's `report` (dict of ``(N, ...)`` arrays).
     """
 
     time: Array
@@ -206,22 +206,22 @@ class SpanImpacts(eqx.Module):
 
 
 class SpanResult(eqx.Module):
-    """Result of :func:`simulate_span` (SI units).
+    """Result of `simulate_span` (SI units).
 
-    - `history`: :class:`SpanHistory` on ``n_save`` equally spaced times (None
+    - `history`: `SpanHistory` on ``n_save`` equally spaced times (None
       for ``n_save = 0``).
-    - `steps`: :class:`SpanHistory` at ``t0`` and every accepted step (padded
+    - `steps`: `SpanHistory` at ``t0`` and every accepted step (padded
       to ``max_steps + 1``): resolves every contact, for plots of peaks.
-    - `impacts`: :class:`SpanImpacts`.
+    - `impacts`: `SpanImpacts`.
     - `q`, `q_dot`: state at ``t1``.
     - `applied_work`, `contact_work`, `friction_work`, `contact_energy`,
       `kinetic_energy`, `potential_energy` [J] at ``t1`` (see
-      :class:`SpanHistory`); `dissipated_contact_work` = ``W_n - V_c``.
+      `SpanHistory`); `dissipated_contact_work` = ``W_n - V_c``.
     - `energy_error`: largest ``|energy_error|`` over the steps [J];
       `energy_scale`: ``max(|W_a|, W_n + W_f, |T - T0|, |V - V0|)`` over the
       steps, so ``energy_error / energy_scale`` is the relative closure.
     - `num_steps`, `num_accepted_steps`, `num_rejected_steps`.
-    - `result`: a :class:`RESULTS` code (``max_steps_reached``,
+    - `result`: a `RESULTS` code (``max_steps_reached``,
       ``solver_failed``); with ``simulate_span(..., throw=False)`` a failed
       span has NaN floating-point outputs and says here why.
     """
@@ -377,7 +377,7 @@ class _Span(eqx.Module):
         ``max_damping = 0.1``), see tests/test_multi.py.  The values hardly
         change, but the derivative of the discrete solve with
         respect to anything that moves the instant of contact (a drop height,
-        a clearance) converges: see :class:`SpanSettings`.  The decay ``-z``
+        a clearance) converges: see `SpanSettings`.  The decay ``-z``
         keeps ``z = O(w)`` so that ``rtol |z|`` never loosens the control."""
         s = self.settings
         h_star = s.onset_step * self.length / self.speed / self.time
@@ -893,25 +893,25 @@ def simulate_span(
 
     **Arguments:**
 
-    - `scene`: a mechanism (:class:`diffimpact.scenes.BouncingBar`,
-      :class:`diffimpact.scenes.SliderCrank`, ...).
+    - `scene`: a mechanism (`diffimpact.scenes.BouncingBar`,
+      `diffimpact.scenes.SliderCrank`, ...).
     - `law`: the normal contact law of every contact of the scene
-      (:class:`AdamsImpact`, :class:`Hertz`, :class:`JacksonGreen`; the
+      (`AdamsImpact`, `Hertz`, `JacksonGreen`; the
       Hunt-Crossley family is refused, see the module docstring).
-    - `friction`: a :class:`Friction` at every contact (None: frictionless).
-    - `settings`: a :class:`SpanSettings`.
+    - `friction`: a `Friction` at every contact (None: frictionless).
+    - `settings`: a `SpanSettings`.
     - `n_save`: number of equally spaced samples in ``result.history``
       (0: none; ``result.steps`` always has every accepted step).
-    - `throw`: as in :func:`diffimpact.simulate`: True raises when the solve
+    - `throw`: as in `diffimpact.simulate`: True raises when the solve
       fails (out of steps, solver failure); False returns NaN outputs with the
       reason in ``result.result``.
 
-    **Returns:** a :class:`SpanResult`.  ``jax.jit``, ``jax.grad`` and
+    **Returns:** a `SpanResult`.  ``jax.jit``, ``jax.grad`` and
     ``jax.vmap`` compose with it; every number of the scene, law and friction
-    is a traced field.  Known limit: with :class:`JacksonGreen` the gradients
+    is a traced field.  Known limit: with `JacksonGreen` the gradients
     are finite but converge poorly with the tolerance (the switch of the
     maximum-compression state where the surfaces meet; benchmarks/RESULTS.md):
-    take JG gradients from :func:`simulate`, or use Hertz/ADAMS in spans.
+    take JG gradients from `simulate`, or use Hertz/ADAMS in spans.
     """
     if not isinstance(scene, AbstractMechanism):
         raise TypeError(

@@ -2,14 +2,14 @@
 smooth-switched and the per-phase vector fields, the ``diffeqsolve`` call with
 its separation event and result codes, and the outputs every method shares.
 
-- ``"smooth"`` (:func:`_solve_smooth`): the phases as one smooth-switched vector
+- ``"smooth"`` (`_solve_smooth`): the phases as one smooth-switched vector
   field integrated by diffrax, ending at separation with a real-valued event
   located by Newton's method (so the contact time is differentiable).
-- ``"events"`` (:func:`_solve_events`): the exact piecewise solve, with events
+- ``"events"`` (`_solve_events`): the exact piecewise solve, with events
   at the elastic limit, at zero interference rate and at separation; each
   phase is its own diffrax solve.  The reference for the smooth method.
 
-Everything runs in the impact's own units (see :class:`SolverSettings`).
+Everything runs in the impact's own units (see `SolverSettings`).
 """
 
 from __future__ import annotations
@@ -318,8 +318,8 @@ def _solve_events(problem, bound, settings):
         # d_s is reached and at what speed u_s.  The event "u falls to u_s"
         # crosses zero once, whereas "d reaches d_s" crosses twice inside one
         # step when the turning point lies just past d_s, and diffrax misses
-        # a double crossing (issue #507): the benchmark batch caught impacts
-        # ending at d* = 1.9004 treated as elastic (5 % COR error).
+        # a double crossing (diffrax GitHub issue 507): impacts ending at
+        # d* = 1.9004 would be treated as elastic (5 % COR error).
         d_s = bound.switch_deflection()
         m, g = problem.mass, problem.gravity
         kinetic_at_switch = 0.5 - (bound.elastic_work(d_s) - m * g * d_s) / (
@@ -331,7 +331,7 @@ def _solve_events(problem, bound, settings):
             return y[1] - u_s
 
         # If both fire inside one step the switch came first: diffrax keeps the
-        # first in pytree order (issue #639).
+        # first in pytree order (diffrax GitHub issue 639).
         conds, dirs = (switch, stop), (False, False)
     else:
         conds, dirs = (stop,), (False,)
@@ -410,8 +410,8 @@ def result_fields(
     num_steps,
     history=None,
 ) -> dict:
-    """The :class:`ImpactResult` fields shared by every solver, with the three
-    coefficients of restitution of physics.md section 5 (Newton from the normal
+    """The `ImpactResult` fields shared by every solver, with the three
+    coefficients of restitution of docs/physics/contact.md (Newton from the normal
     velocities, Poisson from the normal impulses, energetic from the normal
     works of compression and restitution)."""
     i_comp, i_rest = impulses

@@ -1,13 +1,13 @@
 """From a simulated impact to what an experimenter measures.
 
-An :class:`Experiment` is the model behind one experiment file: a template
+An `Experiment` is the model behind one experiment file: a template
 scene (its fields are the defaults; each CSV row replaces the inputs it gives),
-a normal law, optional friction, and how to solve.  :func:`predict` maps one
-row of inputs to the measured quantities of :data:`diffimpact._data.QUANTITIES`.
+a normal law, optional friction, and how to solve.  `predict` maps one
+row of inputs to the measured quantities of `diffimpact._data.QUANTITIES`.
 
 The scene registry says, per scene, which CSV inputs set which scene fields,
 which inputs every row must give, and the short parameter names a user fits
-(``yield_strength``, ``mu``, ...), each a path into the :class:`Experiment`.
+(``yield_strength``, ``mu``, ...), each a path into the `Experiment`.
 """
 
 from __future__ import annotations
@@ -39,7 +39,7 @@ class Experiment(eqx.Module):
 
     **Arguments:** `scene` (its numbers are defaults, replaced row by row by the
     inputs of a data file), `law`, `friction` (None = frictionless), `method`
-    and `settings` for :func:`diffimpact.simulate`.
+    and `settings` for `diffimpact.simulate`.
     """
 
     scene: AbstractScene
@@ -53,7 +53,8 @@ class Experiment(eqx.Module):
     @staticmethod
     def default(scene: str) -> Experiment:
         """The built-in experiment of a scene name (e.g. ``"sphere_on_incline"``:
-        data.md A's ball and prism, Jackson-Green law, friction ``mu = 0.2``)."""
+        the ball and prism of Alaci, Filote & Ciornei, Jackson-Green law,
+        friction ``mu = 0.2``)."""
         return scene_spec(scene).default()
 
 
@@ -70,9 +71,9 @@ class SceneSpec:
     tangential_before: Callable | None = None  # CM tangential velocity before
 
 
-# Ball-prism defaults (data.md A): bearing-steel ball, 19 mm diameter, on an
-# as-delivered OLC-45 (C45) prism.  The paper gives no material data: E, nu of
-# both from data.md A's ranges; S_y of the prism a mid-range start value.
+# Ball-prism defaults (Alaci, Filote & Ciornei): bearing-steel ball, 19 mm diameter, on
+# an as-delivered OLC-45 (C45) prism.  The paper gives no material data: E, nu of both
+# from that paper's ranges; S_y of the prism a mid-range start value.
 _BALL_RADIUS = 9.5e-3
 _STEEL_DENSITY = 7850.0
 _BALL_MASS = 4.0 / 3.0 * math.pi * _BALL_RADIUS**3 * _STEEL_DENSITY
@@ -99,12 +100,12 @@ def _normal_impact() -> Experiment:
 
 
 def _rotating_link() -> Experiment:
-    # data.md E: a steel link and a steel flat of the same material, released
-    # from rest in a horizontal position.  The paper's dimensions are not in
-    # the text we have: a 0.2 m long, 10 mm diameter rod striking at 30 deg.
-    # Both bodies have the same yield strength; the contact uses the lower one
-    # (G-3), so the link is given S_y = inf and `yield_strength` names the
-    # flat's, which is then the pair's.
+    # The rotating-link paper (Math. Probl. Eng. 2020): a steel link and a steel flat of
+    # the same material, released from rest in a horizontal position.  The paper's
+    # dimensions are not in the text we have: a 0.2 m long, 10 mm diameter rod striking
+    # at 30 deg. Both bodies have the same yield strength; the contact uses the lower
+    # one (G-3), so the link is given S_y = inf and `yield_strength` names the flat's,
+    # which is then the pair's.
     diameter, length = 0.01, 0.2
     mass = _STEEL_DENSITY * math.pi * diameter**2 / 4.0 * length
     steel = Material(207e9, 0.3, math.inf, _STEEL_DENSITY)
@@ -114,7 +115,7 @@ def _rotating_link() -> Experiment:
 
 
 def _free_bar() -> Experiment:
-    # data.md B, xi = 1/8: the Babbitt/steel bar (the body that yields) on an
+    # Wang & Fu (2019), xi = 1/8: the Babbitt/steel bar (the body that yields) on an
     # AISI 1045 flat, 45 deg, dropped 0.3 m.
     bar = Material(200.83e9, 0.3, 230.63e6, 7850.0)
     flat = Material(205e9, 0.29, 355e6, 7850.0)
@@ -253,7 +254,7 @@ def with_parameters(experiment: Experiment, paths) -> Experiment:
 
 def set_parameters(experiment: Experiment, values: dict) -> Experiment:
     """Return ``experiment`` with parameters set by name (names as in
-    :func:`resolve_parameter`); values in SI units."""
+    `resolve_parameter`); values in SI units."""
     if not values:
         return experiment
     paths = [resolve_parameter(experiment, n) for n in values]
@@ -327,10 +328,10 @@ def si_inputs(experiment: Experiment, inputs: dict) -> dict:
 
 def with_inputs(experiment: Experiment, inputs: dict) -> Experiment:
     """Replace the scene fields that one row's ``inputs`` give (keys as in
-    :func:`si_inputs`).
+    `si_inputs`).
 
-    ``eqx.tree_at`` does not re-run the scene's checks; :func:`simulate` runs
-    them on the scene it is given (and :func:`check_rows` validates whole
+    ``eqx.tree_at`` does not re-run the scene's checks; `simulate` runs
+    them on the scene it is given (and `check_rows` validates whole
     files before any solve)."""
     inputs = si_inputs(experiment, inputs)
     spec = scene_spec(experiment.scene)
@@ -394,12 +395,12 @@ def predict(
     (``{"drop_height_m": 0.3, "angle_deg": 30}``); an unknown name is an error
     listing the valid ones, and a value outside the scene's range (an angle
     in degrees given as radians, say) is refused by the scene's checks.
-    `throw`: as in :func:`simulate`; with False the dict also holds
-    ``"result"``, the :class:`RESULTS` code, and failed outputs are NaN.
+    `throw`: as in `simulate`; with False the dict also holds
+    ``"result"``, the `RESULTS` code, and failed outputs are NaN.
 
     Keys follow the experiment CSV quantities (``contact_time``,
     ``cor_normal``, ...); ``cor_tangential`` is the centre-of-mass tangential
-    velocity after over before.  (`_guarded`: as in :func:`simulate`.)
+    velocity after over before.  (`_guarded`: as in `simulate`.)
     """
     e = with_inputs(experiment, inputs or {})
     r = simulate(

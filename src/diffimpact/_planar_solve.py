@@ -1,6 +1,6 @@
 """One impact of a planar rigid-body scene with friction (smooth method).
 
-The state is a :class:`PlanarState` in the impact's own units (length
+The state is a `PlanarState` in the impact's own units (length
 ``d_ref``, time ``d_ref / v0`` of the normal problem with the effective normal
 mass ``1 / (J_n M^-1 J_n^T)``): scaled coordinates and velocities ``q / S``,
 ``q_dot T / S`` with ``S_i = d_ref / max(|J_n,i|, |J_t,i|)`` (so that every
@@ -10,8 +10,8 @@ needs besides (the running peak force of a rate-dependent law, the running
 minimum slip with friction, the Mindlin spring's stretch with compliant
 friction; None otherwise).  The normal force is the same smooth-switched law
 as the 1-DOF path (``_normal_solve._smooth_force``); friction (F-1 or F-2) is
-the exact-hold law of :class:`Friction`, fed with the scene's holding force
-(:meth:`_Planar.holding_force`).
+the exact-hold law of `Friction`, fed with the scene's holding force
+(`_Planar.holding_force`).
 
 Slip classification (with friction only): ``s(t) = sigma v_t(t) / v_ref`` is the
 signed slip ratio of the contact point, ``v_ref`` the normal approach speed and
@@ -145,7 +145,7 @@ class _Planar(eqx.Module):
         ``dv_t/dt = J_t M^-1 (-J_n^T F_n + J_t^T F_t + g) + (dJ_t/dt) q_dot = 0``
         solved for ``F_t`` (the mass matrix is diagonal and ``J_t M^-1 J_t^T >
         0``; ``bias = (dJ_t/dt) q_dot``), the input of the exact-hold friction
-        law (:class:`Friction`)."""
+        law (`Friction`)."""
         free = j_t @ ((self.gravity - j_n * f_n) * self.inv_mass) + bias
         return -free / (j_t @ (j_t * self.inv_mass))
 

@@ -1,5 +1,4 @@
-"""Exact normal impact without an ODE (physics.md, "Exact normal impact without
-an ODE").
+"""Exact normal impact without an ODE (docs/physics/contact.md).
 
 For one normal degree of freedom every output follows from energy integrals:
 
@@ -89,7 +88,7 @@ def _travel_time(delta, potential_drop, m, order, s_lo=0.0, s_hi=1.0):
 
 def normal_timeline(problem, bound, settings) -> Timeline:
     """The normal impact solved by energy integrals (module docstring), as a
-    :class:`Timeline`: its totals, and the state at any point of the contact."""
+    `Timeline`: its totals, and the state at any point of the contact."""
     if bound.rate_dependent:
         raise ValueError(
             "method='quadrature' needs a law whose loading force depends on the "
@@ -234,7 +233,7 @@ def normal_timeline(problem, bound, settings) -> Timeline:
 
 
 class Timeline:
-    """A normal impact solved by :func:`normal_timeline`, and its state along
+    """A normal impact solved by `normal_timeline`, and its state along
     the way (built and used inside one trace; not a pytree).
 
     Restitution is parametrised by ``r`` in ``[0, 1]``, ``d = d_m - (d_m -
@@ -293,5 +292,5 @@ class Timeline:
 
 
 def solve_quadrature(problem, bound, settings) -> dict:
-    """The outputs of :func:`normal_timeline` (the ``"quadrature"`` method)."""
+    """The outputs of `normal_timeline` (the ``"quadrature"`` method)."""
     return normal_timeline(problem, bound, settings).outputs()

@@ -16,7 +16,7 @@ class RESULTS(eqx.Enumeration):
 
     Every result carries one in its ``result`` field.  With ``throw=True``
     (the default) a failure raises: eagerly as the matching
-    :class:`SimulationError` subclass, under ``jax.jit``/``jax.vmap`` as an
+    `SimulationError` subclass, under ``jax.jit``/``jax.vmap`` as an
     ``equinox`` runtime error with the same message.  With ``throw=False``
     nothing raises: a failed element's floating-point outputs are NaN and its
     ``result`` says why, and the other elements of a batch are unaffected.
@@ -63,7 +63,7 @@ class RESULTS(eqx.Enumeration):
 
 class SimulationError(RuntimeError):
     """A solve that did not produce a valid impact (eager calls with
-    ``throw=True``).  ``result`` is the :class:`RESULTS` item."""
+    ``throw=True``).  ``result`` is the `RESULTS` item."""
 
     def __init__(self, message: str, result=None):
         super().__init__(message)
@@ -129,7 +129,7 @@ def finish(tree, result, throw: bool):
 
 
 def raise_if_failed(result, extra: str = "") -> None:
-    """Eager ``throw=True``: raise the :class:`SimulationError` subclass of the
+    """Eager ``throw=True``: raise the `SimulationError` subclass of the
     first failed element of a concrete ``result``."""
     codes = np.atleast_1d(np.asarray(result._value))
     bad = np.nonzero(codes != int(RESULTS.successful._value))[0]
@@ -156,15 +156,15 @@ class ImpactResult(eqx.Module):
     - `rebound_velocity` [m/s]: normal separation speed (> 0).
     - `cor_newton`: ``v_out / v0``; `cor_poisson`: restitution / compression
       normal impulse; `cor_energetic`: ``sqrt(W_restitution / W_compression)``
-      (physics.md section 5).
+      (docs/physics/contact.md).
     - `max_force` [N], `max_deflection` ``d_m`` [m], `permanent_deformation`
       ``d_r`` [m].
     - `impulse_compression`, `impulse_restitution` [N s]; `work_compression`,
       `work_restitution` [J] (work of the contact force, both positive).
     - `num_steps`: accepted + rejected solver steps (0 for quadrature).
-    - `result`: a :class:`RESULTS` code; with ``simulate(..., throw=False)`` a
+    - `result`: a `RESULTS` code; with ``simulate(..., throw=False)`` a
       failed impact has NaN outputs and says here why.
-    - `history`: a :class:`History` when ``n_history > 0``, else None.
+    - `history`: a `History` when ``n_history > 0``, else None.
     - `extras`: scene-specific outputs (e.g. ``velocity1_after`` for Collinear).
     """
 

@@ -1,10 +1,10 @@
-"""One impact, from first contact to separation: :func:`simulate`.
+"""One impact, from first contact to separation: `simulate`.
 
 Three methods share one post-processing step (``_normal_solve._assemble``):
-``"smooth"`` and ``"events"`` (diffrax solves, :mod:`._normal_solve`) and
-``"quadrature"`` (the ODE-free energy solution, :mod:`._quadrature`); planar
+``"smooth"`` and ``"events"`` (diffrax solves, `._normal_solve`) and
+``"quadrature"`` (the ODE-free energy solution, `._quadrature`); planar
 scenes with friction, or whose rotation couples to the normal motion, are
-solved by :mod:`._planar_solve`.
+solved by `._planar_solve`.
 """
 
 from __future__ import annotations
@@ -31,7 +31,7 @@ _METHODS = ("auto", "smooth", "events", "quadrature")
 
 def _quadrature(problem, bound, settings, scene=None, friction=None):
     """The ODE-free path; with ``friction``, also the closed-form tangential
-    outcome of ``scene`` (:mod:`._tangential`) under the key ``"tangential"``.
+    outcome of ``scene`` (`._tangential`) under the key ``"tangential"``.
 
     Its travel times integrate ``1/sqrt(potential drop)`` near a turning
     point, where float32 cancellation can make the drop negative (NaN times,
@@ -82,7 +82,7 @@ def _quadrature(problem, bound, settings, scene=None, friction=None):
 
 def _exact_tangential(scene, friction) -> bool:
     """Whether the tangential outcome has the closed form of
-    :mod:`._tangential` (the law must also be rate-independent): a scene
+    `._tangential` (the law must also be rate-independent): a scene
     whose slip decouples, with rigid friction and no viscous term."""
     return (
         isinstance(scene, AbstractPlanarScene)
@@ -176,9 +176,9 @@ def simulate(
 
     **Arguments:**
 
-    - `scene`: e.g. :class:`diffimpact.scenes.NormalImpact` or
-      :class:`diffimpact.scenes.Collinear`.
-    - `law`: a normal force law (:class:`Hertz`, :class:`JacksonGreen`, ...).
+    - `scene`: e.g. `diffimpact.scenes.NormalImpact` or
+      `diffimpact.scenes.Collinear`.
+    - `law`: a normal force law (`Hertz`, `JacksonGreen`, ...).
     - `method`: ``"auto"`` (default), ``"smooth"``, ``"events"`` or
       ``"quadrature"``.  ``"smooth"`` integrates the smooth-switched ODE
       (every law, histories), ``"events"`` an event-switched one (1-DOF
@@ -187,33 +187,33 @@ def simulate(
       exact to about 1e-11).  With friction on a scene whose tangential motion
       decouples (a sphere on a plane) and rigid friction without a viscous
       term, ``"quadrature"`` also gives the tangential outcome in closed form
-      (stick, re-slip and all; see :mod:`diffimpact._tangential`).
+      (stick, re-slip and all; see `diffimpact._tangential`).
       ``"auto"`` takes ``"quadrature"`` wherever it applies, and ``"smooth"``
       everywhere else (rate-dependent laws, coupled planar scenes, compliant
       or viscous friction, ``n_history > 0``).
-    - `settings`: a :class:`SolverSettings`.
-    - `friction`: a :class:`Friction` at the contact point, for planar scenes
-      (e.g. :class:`diffimpact.scenes.SphereOnIncline`); None = frictionless,
+    - `settings`: a `SolverSettings`.
+    - `friction`: a `Friction` at the contact point, for planar scenes
+      (e.g. `diffimpact.scenes.SphereOnIncline`); None = frictionless,
       which solves the decoupled 1-DOF normal problem (no tangential state).
     - `n_history`: number of equally spaced samples of deflection, velocity and
       force to return in ``result.history`` (``"smooth"`` only; 0 = none).
     - `throw`: what a failed impact does (outside the contact model, never
       separating, out of steps).  True (default): raise, eagerly as a
-      :class:`SimulationError` subclass (:class:`OutsideModelError`, ...), under
+      `SimulationError` subclass (`OutsideModelError`, ...), under
       ``jit``/``vmap`` as an ``equinox`` runtime error with the same message.
       False: return it with NaN in every floating-point output and the reason
-      in ``result.result`` (a :class:`RESULTS` code), leaving the other
+      in ``result.result`` (a `RESULTS` code), leaving the other
       elements of a ``vmap`` batch untouched.  Invalid inputs (a negative
       modulus, a NaN speed) always raise, naming the field.
 
-    **Returns:** an :class:`ImpactResult`.
+    **Returns:** an `ImpactResult`.
 
     ``jax.jit``, ``jax.vmap`` and ``jax.grad`` compose with this function: every
     number in ``scene`` and ``law`` is a traced field.
 
     (`_guarded=False`, private: no traced check of the inputs, for callers
     that checked every input eagerly and keep traced values inside their
-    domains, such as :func:`diffimpact.fit`.  A traced check is a host
+    domains, such as `diffimpact.fit`.  A traced check is a host
     callback, and JAX does not store a program with one in its persistent
     compilation cache.)
     """

@@ -4,7 +4,7 @@ A contact law is evaluated at zero interference (first contact) and, inside
 ``jnp.where`` branches, at negative interference.  ``x ** 1.5`` and ``sqrt(x)``
 have infinite or NaN derivatives there, and ``jnp.where`` still differentiates
 the unused branch, so a naive law gives NaN gradients even where its value is
-fine.  Every fractional power in diffimpact goes through :func:`safe_pow`,
+fine.  Every fractional power in diffimpact goes through `safe_pow`,
 which uses the double-``where`` trick: the input is clamped *inside* the branch
 so neither branch ever sees a point where its derivative is undefined.
 """
@@ -31,7 +31,7 @@ def safe_powers(x, *ps):
 
     One ``log`` and one ``exp`` per power instead of a full ``pow`` each (the
     Jackson-Green force raises ``d*`` to five powers on every evaluation).
-    Gradient-safe like :func:`safe_pow`.
+    Gradient-safe like `safe_pow`.
     """
     positive = x > 0
     log_x = jnp.log(jnp.where(positive, x, 1.0))

@@ -9,7 +9,7 @@ from ._checks import plain_number, static_count, static_positive
 
 
 class SolverSettings(eqx.Module):
-    """Numerical settings of :func:`diffimpact.simulate`.
+    """Numerical settings of `diffimpact.simulate`.
 
     The solve runs in the impact's own units: lengths in ``d_ref``, the Hertz-like
     maximum interference ``((n+1) m v0^2 / (2 K))^(1/(n+1))``, times in
@@ -51,7 +51,7 @@ class SolverSettings(eqx.Module):
       ``RecursiveCheckpointAdjoint`` supports reverse mode (``jax.grad``);
       ``diffrax.ForwardMode()`` supports forward mode (``jax.jvp``,
       ``jax.jacfwd``), which is cheaper when there are fewer parameters than
-      outputs, as in least-squares fitting (:func:`diffimpact.fit` uses it).
+      outputs, as in least-squares fitting (`diffimpact.fit` uses it).
       A ``RecursiveCheckpointAdjoint`` without ``checkpoints`` is run with
       ``checkpoints=max_steps`` (every step stored, none re-computed): a
       re-computed step can take a different accept/reject decision and the
@@ -95,7 +95,7 @@ _COUNTS = ("max_steps", "max_impacts")
 
 
 def check_settings(settings, counts=()) -> None:
-    """Static settings (:class:`SolverSettings`, ``SpanSettings``): plain
+    """Static settings (`SolverSettings`, ``SpanSettings``): plain
     ``ValueError``/``TypeError`` at construction, naming the field."""
     owner = type(settings).__name__
     for name in _POSITIVE:

@@ -5,20 +5,20 @@ a leading axis of length ``N`` (one row per parameter combination), and ``fn``
 maps one *unbatched* row (the same pytree with the leading axis removed) to an
 output pytree.
 
-- :func:`sweep`: for large sweeps (10^6 rows and more).  ``jax.vmap(fn)`` runs
+- `sweep`: for large sweeps (10^6 rows and more).  ``jax.vmap(fn)`` runs
   over chunks of ``chunk_size`` rows; each chunk is sharded along its rows over
-  a 1-D :class:`jax.sharding.Mesh` of every device given (all that JAX sees by
+  a 1-D `jax.sharding.Mesh` of every device given (all that JAX sees by
   default, across all processes under ``jax.distributed``) and its outputs are
   copied to host numpy arrays, so device memory is bounded by the chunk,
   whatever ``N``.  The result is numpy: it is *not* differentiable.
-- :func:`sweep_map`: for small sweeps that must be differentiated.  It is
+- `sweep_map`: for small sweeps that must be differentiated.  It is
   ``jax.vmap(fn)``, or ``jax.lax.map(fn, inputs, batch_size=...)`` over
   batches, with no host transfer, so
   ``jax.jit``/``jax.grad``/``jax.vmap`` compose with it (e.g. the gradient of a
   mean rebound velocity over a batch).
 
-Helpers build ``inputs``: :func:`grid` (Cartesian product) and :func:`sample`
-(uniform or log-uniform random rows).  :func:`normal_impact` is the row
+Helpers build ``inputs``: `grid` (Cartesian product) and `sample`
+(uniform or log-uniform random rows).  `normal_impact` is the row
 function of the common case, a sphere on a flat under Jackson-Green contact,
 solved by the ODE-free quadrature.
 """
@@ -195,7 +195,7 @@ def sweep(
       ``N >= 1`` rows.  Kept on the host; each chunk is copied to the devices
       in turn.
     - `chunk_size`: rows per chunk, split evenly over the devices (default:
-      :func:`default_chunk_size`, 512 rows per CPU device).  Rounded up to a
+      `default_chunk_size`, 512 rows per CPU device).  Rounded up to a
       multiple of the number of devices, and down to ``N`` (rounded up) for
       small sweeps.  The last chunk is padded by
       repeating the last row, so every chunk has the same shape and ``fn`` is
@@ -203,7 +203,7 @@ def sweep(
       that of two chunks (one computing while the previous one is copied
       back), whatever ``N``; host memory holds ``inputs`` and the outputs.
     - `devices`: devices to shard each chunk over, as a 1-D
-      :class:`jax.sharding.Mesh` (default ``jax.devices()``: all of them, on
+      `jax.sharding.Mesh` (default ``jax.devices()``: all of them, on
       every process under ``jax.distributed``).  Each gets
       ``chunk_size / len(devices)`` consecutive rows of every chunk.
     - `progress`: draw a text progress bar on stderr (process 0 only).
@@ -213,7 +213,7 @@ def sweep(
 
     **Several processes** (``jax.distributed.initialize()`` first, on every
     machine): every process calls ``sweep`` with the same ``inputs`` (a
-    :func:`grid`, or a :func:`sample` with the same key), computes the rows of
+    `grid`, or a `sample` with the same key), computes the rows of
     its own devices, and gets all ``N`` rows back (gathered by a collective
     after each chunk, so every process must take part).
 
@@ -231,7 +231,7 @@ def sweep(
     the rows per device fixed when results must match bit for bit.
 
     The result is numpy, so ``sweep`` cannot be differentiated; use
-    :func:`sweep_map` for gradients through a (small) sweep.
+    `sweep_map` for gradients through a (small) sweep.
 
     **Raises:** ``ValueError`` naming the field for mismatched leading axes, an
     empty sweep, or ``chunk_size <= 0``.
@@ -330,7 +330,7 @@ def sweep_map(fn: Callable, inputs, *, batch_size: int | None = None):
     It runs on the default device; to shard it, ``jax.jit`` the caller with
     ``in_shardings`` on the rows (and ``batch_size=None``).
 
-    **Arguments:** `fn` and `inputs` as in :func:`sweep`; `batch_size`: rows
+    **Arguments:** `fn` and `inputs` as in `sweep`; `batch_size`: rows
     per vmapped step (integer > 0) or None.
 
     **Returns:** the output pytree of ``fn``, leaves stacked to JAX arrays of
@@ -423,7 +423,7 @@ def sample(key, n: int, **ranges) -> dict[str, np.ndarray]:
 # The common case: a sphere hitting a flat
 # --------------------------------------------------------------------------
 
-# Inputs of :func:`normal_impact` and their defaults (SI): the reference impact
+# Inputs of `normal_impact` and their defaults (SI): the reference impact
 # of the tests and benchmarks, a 5 mm steel sphere on a flat of the same steel.
 NORMAL_DEFAULTS: dict[str, float] = {
     "velocity": 1.0,  # approach speed at first contact [m/s]
@@ -437,7 +437,7 @@ NORMAL_DEFAULTS: dict[str, float] = {
 _NORMAL_COLUMNS = (*NORMAL_DEFAULTS, "mass")
 _ALIASES = {"E": "youngs_modulus", "nu": "poisson_ratio"}
 
-# Outputs of :func:`normal_impact` (ImpactResult fields), SI units.
+# Outputs of `normal_impact` (ImpactResult fields), SI units.
 NORMAL_OUTPUTS = (
     "contact_time",  # [s]
     "cor_newton",  # [-]
@@ -476,7 +476,7 @@ def _normal_scene(params: Mapping[str, Any]):
 
 
 def check_normal_inputs(columns: Mapping[str, Any]) -> None:
-    """Check the columns of a :func:`normal_impact` sweep before running it.
+    """Check the columns of a `normal_impact` sweep before running it.
 
     Inside a sweep the inputs are traced, so a bad row (say a zero velocity)
     only fails at run time, as an ``EquinoxRuntimeError`` from the compiled
@@ -497,8 +497,8 @@ def normal_impact(
 ) -> dict:
     """One row of a normal-impact sweep: a sphere hitting a flat head-on.
 
-    Builds :class:`diffimpact.scenes.NormalImpact` from the named columns of
-    ``params`` (any subset of :data:`NORMAL_DEFAULTS` and ``mass``; the rest
+    Builds `diffimpact.scenes.NormalImpact` from the named columns of
+    ``params`` (any subset of `NORMAL_DEFAULTS` and ``mass``; the rest
     take their defaults) and simulates it.  Sphere and flat are the same material
     (``youngs_modulus``, ``poisson_ratio``, ``yield_strength``), as in the
     Jackson-Green validation grid; ``mass`` defaults to
@@ -507,21 +507,21 @@ def normal_impact(
     **Arguments:**
 
     - `params`: mapping of column name to a scalar (one row).
-    - `law`: the contact law (default :class:`diffimpact.JacksonGreen`).
+    - `law`: the contact law (default `diffimpact.JacksonGreen`).
     - `method`: default ``"quadrature"``, the ODE-free energy solution: exact
       to about 1e-11 and the fastest path (Hertz and Jackson-Green only).
-    - `settings`: :class:`diffimpact.SolverSettings` (default settings).
+    - `settings`: `diffimpact.SolverSettings` (default settings).
     - `throw`: default False: a row whose impact fails (outside the contact
       model, say) gets NaN outputs and its code, and the sweep goes on; True
       stops the whole sweep at the first failure.
 
-    **Returns:** dict of :data:`NORMAL_OUTPUTS` (SI: s, -, N, m, m, m/s) and
-    ``"result"``, the integer :class:`diffimpact.RESULTS` code of each row
-    (0: successful; :func:`diffimpact.result_name` names the others).
+    **Returns:** dict of `NORMAL_OUTPUTS` (SI: s, -, N, m, m, m/s) and
+    ``"result"``, the integer `diffimpact.RESULTS` code of each row
+    (0: successful; `diffimpact.result_name` names the others).
 
-    Use with :func:`sweep` (``sweep(normal_impact, grid(velocity=...))``) or,
+    Use with `sweep` (``sweep(normal_impact, grid(velocity=...))``) or,
     for other laws, ``functools.partial(normal_impact, law=di.Hertz())``;
-    :func:`check_normal_inputs` validates the columns first.
+    `check_normal_inputs` validates the columns first.
     """
     scene = _normal_scene(params)
     res = simulate(

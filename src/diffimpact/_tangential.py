@@ -42,7 +42,7 @@ from ._smooth import safe_pow, safe_sqrt
 def tangential_outcome(scene, problem, timeline, friction):
     """The slip history's outcome for ``scene`` (``tangential_decouples``)
     under rigid ``friction`` without a viscous term, from the ``timeline``
-    (:func:`diffimpact._quadrature.normal_timeline`) of its normal
+    (`diffimpact._quadrature.normal_timeline`) of its normal
     ``problem``.
 
     Returns ``(v_t, (impulse of compression, of restitution), q_dot,
@@ -107,9 +107,9 @@ def tangential_outcome(scene, problem, timeline, friction):
 
 
 def tangential_report(scene, problem, timeline, friction, settings) -> dict:
-    """The tangential extras of :func:`diffimpact.simulate` for a planar scene
+    """The tangential extras of `diffimpact.simulate` for a planar scene
     with friction (as the ODE path reports them), from
-    :func:`tangential_outcome`.  The slip's reference direction is forward
+    `tangential_outcome`.  The slip's reference direction is forward
     (``v_t0 >= 0``)."""
     q0, q_dot0 = scene.initial_state()
     v_t, (impulse_c, impulse_r), q_dot, min_slip = tangential_outcome(

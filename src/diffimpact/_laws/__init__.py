@@ -1,1 +1,1 @@
-"""Normal contact force laws (physics.md section 2)."""
+"""Normal contact force laws (docs/physics/contact.md)."""

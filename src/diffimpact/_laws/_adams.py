@@ -18,7 +18,8 @@ class AdamsImpact(AbstractNormalLaw):
     """``F = max(0, k g^e + STEP(g, 0, 0, d_pen, c_max) g_dot)`` for ``g > 0`` (IM-1).
 
     The material pair does not enter: ADAMS users give the stiffness directly.
-    Defaults are the first model of data.md D (kg-mm-s units there, SI here):
+    Defaults are the first model of Constantin et al. (2022) (kg-mm-s units
+    there, SI here):
     ``k = 250000 kg mm^-1 s^-2`` -> 2.5e8 N/m^2 for ``e = 2``;
     ``c_max = 10 kg/s`` -> 10 N s/m; ``d = 0.1 mm`` -> 1e-4 m.
 

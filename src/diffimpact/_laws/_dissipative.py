@@ -79,7 +79,7 @@ class HuntCrossley(_AbstractDampedHertz):
 
 class LankaraniNikravesh(_AbstractDampedHertz):
     """Lankarani-Nikravesh: ``D = 3 (1 - e^2) / (4 v0)`` (LN).  Arguments as
-    :class:`HuntCrossley`."""
+    `HuntCrossley`."""
 
     def damping_ratio_formula(self):
         return 0.75 * (1.0 - self.cor**2)
@@ -87,7 +87,7 @@ class LankaraniNikravesh(_AbstractDampedHertz):
 
 class Flores(_AbstractDampedHertz):
     """Flores et al.: ``D = 8 (1 - e) / (5 e v0)`` (FL).  Arguments as
-    :class:`HuntCrossley`."""
+    `HuntCrossley`."""
 
     def damping_ratio_formula(self):
         return 1.6 * (1.0 - self.cor) / self.cor
@@ -106,7 +106,7 @@ class BoundDampedHertz(AbstractBoundLaw):
         return self.stiffness, self.exponent
 
     def loading_force(self, d, v, phase: int):
-        # Clamp at zero: the law must never pull (physics.md section 2).
+        # Clamp at zero: the law must never pull (docs/physics/contact.md).
         return (
             self.stiffness
             * safe_pow(d, self.exponent)

@@ -72,12 +72,12 @@ class Friction(AbstractValidated):
     **F-1** (``mu_s`` not given): ``F_t = -(mu F_n + mu_v |v_t|) sgn(v_t)``.
     **F-2** (``mu_s`` given, ``mu_s >= mu_k``): stick while the tangential force
     needed to keep ``v_t = 0`` stays within ``mu_s F_n``, slide with ``mu_k``
-    otherwise (physics.md section 3).  In the smooth-switched vector field the
+    otherwise (docs/physics/friction.md).  In the smooth-switched vector field the
     switch at ``v_t = 0`` is spread over the slip width ``eps =
     SolverSettings.slip_width * v_ref`` (``v_ref`` the normal approach speed),
     with ``x = v_t / eps``, in one of two forms.
 
-    **Exact hold** (planar scenes: :meth:`force` with ``holding_force``).  The
+    **Exact hold** (planar scenes: `force` with ``holding_force``).  The
     scene supplies the *holding force* ``F_h``, the tangential force that
     keeps the slip velocity constant (from its rigid-body dynamics, without
     friction), and the friction force is
@@ -104,8 +104,8 @@ class Friction(AbstractValidated):
     or as soon as the demand exceeds ``mu_s F_n`` (``x_s = breakaway_slip``,
     default 1 in this form).
 
-    **Slope only** (:meth:`force` without ``holding_force``; used by
-    :func:`diffimpact.simulate_span`, whose mechanisms are not one free rigid
+    **Slope only** (`force` without ``holding_force``; used by
+    `diffimpact.simulate_span`, whose mechanisms are not one free rigid
     body): ``sgn`` becomes ``tanh(x)``, and stick is approximated by the steep
     slope near ``v_t = 0``: a held contact creeps at ``eps atanh(F_h / c)``, an
     error of order ``eps`` (1.1e-4 .. 1.7e-4 of a held bar's rebound at the
@@ -124,11 +124,11 @@ class Friction(AbstractValidated):
 
     **Tangential compliance** (``compliant=True``, planar scenes).  The
     contact is a Mindlin spring in series with Coulomb slip (Mindlin 1949;
-    Maw, Barber & Fawcett, *Wear* 38, 1976; physics.md is silent on it): the
+    Maw, Barber & Fawcett, *Wear* 38, 1976): the
     elastic tangential displacement ``delta`` is a state, the spring force is
     ``-k_t delta`` with the no-slip stiffness ``k_t = 8 G* a``, ``a = sqrt(R
     d)`` the Hertz contact radius and ``G*`` the effective shear modulus
-    (:class:`ContactProperties`), and the force on the body is that capped
+    (`ContactProperties`), and the force on the body is that capped
     smoothly at ``mu F_n``.  ``delta`` follows the contact point's slip
     velocity while the spring is below the cap, stops growing at the cap (gross
     slip) and is relaxed back to it when the cap falls.  A stuck contact
@@ -143,7 +143,7 @@ class Friction(AbstractValidated):
     ``mu_k=`` is accepted as a keyword alias); `mu_v`: viscous coefficient [N
     s/m] (>= 0; default None: no viscous term at all, which a solve does not
     pay for, and which lets a sphere take the exact shortcut of
-    :func:`diffimpact.simulate`; a number, 0.0 included, makes it a
+    `diffimpact.simulate`; a number, 0.0 included, makes it a
     differentiable field); `mu_s`: static coefficient (>= ``mu``; default
     None = plain F-1, bit-identical to ``Friction(mu, mu_v)``);
     `breakaway_slip`: ``x_s`` in slip widths (static; default None: 1 for the

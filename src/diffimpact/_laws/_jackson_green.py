@@ -35,13 +35,13 @@ class JacksonGreen(AbstractNormalLaw):
     """Elastic (Hertz) loading, elasto-plastic loading beyond ``d* = 1.9``, and
     Hertzian restitution about the permanent deformation ``d_r``.
 
-    **Arguments** (defaults: physics.md, JG-1..JG-10):
+    **Arguments** (defaults: JG-1..JG-10, docs/physics/contact.md):
 
     - `c_a`, `c_b`: ``C = c_a exp(c_b nu)`` (JG-1); 1.295, 0.736.
     - `elastic_limit`: ``d*`` where elasto-plastic loading starts (JG-4/5); 1.9.
     - `ep_decay`, `ep_decay_exponent`: ``exp(-0.17 d*^(5/12))`` in JG-5.
-    - `hardness_scale`, `hardness_exponent`, `ep_exponent`: ``1/78``, ``5/9``,
-      ``1.1`` in the second term of JG-5.
+    - `hardness_scale`, `hardness_exponent`, `ep_exponent`: 78, ``5/9``,
+      ``1.1`` in the second term of JG-5, ``1 - exp(-d*^(5/9) / 78)`` and ``d*^1.1``.
     - `hg_a`, `hg_b`: ``H_G/S_y = 2.84 - 0.92 (1 - cos(pi a/R))`` (JG-6).
     - `b_a`, `b_b`: ``B = 0.14 exp(23 S_y / E*)`` (JG-6).
     - `dr_a`, `dr_b`, `dr_c`, `dr_exponent`: ``d_r = d_m 0.8 (1 - ((d_m/d_y + 5.5)
@@ -49,7 +49,7 @@ class JacksonGreen(AbstractNormalLaw):
     - `unloading_exponent`: 3/2 in JG-10.
     - `yield_onset` (static): ``"elastic_limit"`` (default, ``d_y = 1.9 d_c`` as both
       source papers do) or ``"critical"`` (``d_y = d_c``, Jackson-Green's onset of
-      sub-surface yield); see the JG-8 note in physics.md.
+      sub-surface yield); see JG-8 in docs/physics/contact.md.
     - `continuous` (static): scale JG-5 so it meets Hertz at ``d* = 1.9``.  By
       default (False) the force drops by about 10 % there, as in the source.
     """
@@ -195,7 +195,7 @@ class BoundJacksonGreen(AbstractBoundLaw):
         return self._hertz(d) if phase == 0 else self._elasto_plastic(d)
 
     def loading_force_smooth(self, d, v, phase_width):
-        # Blend JG-4 into JG-5 across d* = elastic_limit (physics.md section 4).
+        # Blend JG-4 into JG-5 across d* = elastic_limit (docs/physics/contact.md).
         s = step(d / self.d_c - self.law.elastic_limit, phase_width)
         return (1.0 - s) * self._hertz(d) + s * self._elasto_plastic(d)
 

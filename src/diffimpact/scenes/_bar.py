@@ -1,8 +1,8 @@
-"""A free rigid bar dropped onto a flat at an angle (physics.md section 6).
+"""A free rigid bar dropped onto a flat at an angle (docs/physics/scenes.md).
 
 Source: Wang & Fu, "Analytical study of Babbitt/steel composite structural bars
 in oblique contact-impact with a solid flat surface", Mech. Sci. 10, 213-228
-(2019) (data.md B).  The bar is rigid here (the source adds assumed vibration
+(2019).  The bar is rigid here (the source adds assumed vibration
 modes).
 """
 
@@ -23,8 +23,8 @@ from ._planar import AbstractPlanarScene
 
 class AbstractRod(AbstractValidated):
     """Fields, checks and geometry of a rigid rod with hemispherical ends,
-    shared by :class:`FreeBar` (one impact) and
-    :class:`diffimpact.scenes.BouncingBar` (a span of impacts)."""
+    shared by `FreeBar` (one impact) and
+    `diffimpact.scenes.BouncingBar` (a span of impacts)."""
 
     mass: Array = eqx.field(converter=as_float)
     body: Material
@@ -84,8 +84,8 @@ class AbstractRod(AbstractValidated):
 
 class FreeBar(AbstractRod, AbstractPlanarScene):
     """A planar rigid rod falling without spin onto a fixed horizontal flat,
-    striking it with the hemispherical tip of its lower end (data.md B;
-    physics.md section 6).
+    striking it with the hemispherical tip of its lower end (Wang & Fu 2019;
+    docs/physics/scenes.md).
 
     **Geometry.** The flat is the line ``y = 0``.  ``q = (x, y, theta)``: the
     centre of mass and the angle ``theta`` between the bar axis and the flat,
@@ -93,7 +93,7 @@ class FreeBar(AbstractRod, AbstractPlanarScene):
     centre of mass.  ``length`` ``L`` is the overall length; the tip is a
     hemisphere of radius ``R_b`` (``tip_radius``, default ``diameter / 2``)
     whose centre lies on the axis at ``l = L/2 - R_b`` from the centre of mass.
-    The contact point is the lowest point of the cap (physics.md section 6), at
+    The contact point is the lowest point of the cap (docs/physics/scenes.md), at
     depth
 
         ``d = R_b + l sin(theta) - y``
@@ -125,7 +125,7 @@ class FreeBar(AbstractRod, AbstractPlanarScene):
     ``theta`` [rad] in (0, pi/2] (default pi/4); `tip_radius` [m] (default
     ``diameter / 2``; ``length`` must exceed twice it); `gravity` [m/s^2]
     (default 9.81); `cross_section_inertia` (static bool, default False).
-    The defaults are the bars of data.md B (80 mm, 10 mm diameter, ``R_b`` =
+    The defaults are the bars of Wang & Fu (2019) (80 mm, 10 mm diameter, ``R_b`` =
     5 mm, 45 deg); e.g. the ``xi = 1/8`` bar from 0.3 m::
 
         bar = Material(200.83e9, 0.3, 230.63e6)
@@ -182,7 +182,7 @@ class FreeBar(AbstractRod, AbstractPlanarScene):
         ``1 / (J_n M^-1 J_n^T) = 1 / (1/m + l^2 cos^2(theta) / I)``, approach
         speed ``v'``, gravity's normal acceleration ``J_n M^-1 Q = g``.
         Informative only: the normal motion couples to the rotation, so
-        :func:`simulate` always solves the bar as a planar scene."""
+        `simulate` always solves the bar as a planar scene."""
         q0, q_dot0 = self.initial_state()
         _, j_n, _ = self.kinematics(q0)
         inv_mass = 1.0 / self.mass_diagonal()

@@ -1,7 +1,7 @@
-"""A rotating link (compound pendulum) hitting a flat (physics.md section 6).
+"""A rotating link (compound pendulum) hitting a flat (docs/physics/scenes.md).
 
 Source: "Impact of a rotating link with a flat surface, with Coulomb and viscous
-friction" (Math. Probl. Eng. 2020; data.md E).
+friction" (Math. Probl. Eng. 2020).
 """
 
 from __future__ import annotations
@@ -31,7 +31,7 @@ _RELEASE_ANGLE = (
 
 class RotatingLink(AbstractPlanarScene):
     """A uniform rod pinned at one end swings down from rest and strikes a fixed
-    horizontal flat with its rounded tip (data.md E; physics.md section 6).
+    horizontal flat with its rounded tip (docs/physics/scenes.md).
 
     **Geometry.** The flat is the line ``y = 0``; the pivot is fixed at height
     ``H`` above it.  ``phi`` is the angle between the link and the flat,
@@ -39,7 +39,7 @@ class RotatingLink(AbstractPlanarScene):
     ``L`` is the overall length from the pivot to the end of the tip; the tip is
     a hemisphere of radius ``r`` (``tip_radius``, default ``diameter / 2``)
     whose centre lies on the axis at ``L - r`` from the pivot.  The contact
-    point is the lowest point of the cap (physics.md section 6), at depth
+    point is the lowest point of the cap (docs/physics/scenes.md), at depth
 
         ``d(phi) = r + (L - r) sin(phi) - H``
 
@@ -64,7 +64,7 @@ class RotatingLink(AbstractPlanarScene):
     distribution is neglected, as in the source), centre of mass at ``L / 2``,
     inertia about the pivot ``I = m L^2 / 3``.  The cross-section term
     ``m D^2 / 16`` of a solid cylinder of diameter ``D`` is added only with
-    ``cross_section_inertia=True`` (the source and physics.md leave it out).
+    ``cross_section_inertia=True`` (the source leaves it out).
 
     **Swing.** Released from rest at ``phi = beta`` (``release_angle``; 0 is
     horizontal, as in the source's experiment), the swing is conservative, so
@@ -180,7 +180,7 @@ class RotatingLink(AbstractPlanarScene):
         """The normal problem at first contact: effective mass ``I / J_n^2``
         (= ``1 / (J_n M^-1 J_n^T)``), approach speed ``J_n omega_0``, gravity's
         normal acceleration ``J_n M^-1 Q``.  Informative only: the normal motion
-        couples to the rotation, so :func:`simulate` always solves the link as a
+        couples to the rotation, so `simulate` always solves the link as a
         planar scene."""
         q0, q_dot0 = self.initial_state()
         _, j_n, _ = self.kinematics(q0)

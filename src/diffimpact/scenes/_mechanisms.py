@@ -1,9 +1,9 @@
-"""Mechanisms with contacts that open and close many times (issue 7).
+"""Mechanisms with contacts that open and close many times.
 
 A *mechanism* is a planar multibody system in generalised coordinates ``q``
 (``n`` of them) whose contacts are penetration functions ``d_k(q)``.  It is
 solved over a time span, free flight and every impact in one diffrax solve, by
-:func:`diffimpact.simulate_span`.  A scene states only geometry and inertia;
+`diffimpact.simulate_span`.  A scene states only geometry and inertia;
 the solver builds Lagrange's equations from it:
 
 - ``positions(q)``: the *weighted coordinates* ``r(q)`` of the bodies (a body's
@@ -19,20 +19,20 @@ the solver builds Lagrange's equations from it:
   (> 0 in contact), ``J_n,k`` with ``d_dot_k = J_n,k q_dot``, and ``J_t,k``
   with ``v_t,k = J_t,k q_dot`` the sliding velocity of the contact point.  The
   contact forces enter as ``-J_n^T F_n + J_t^T F_t`` (as in the planar
-  scenes, physics.md section 6).
+  scenes, docs/physics/scenes.md).
 
 Units are SI.  The source of both scenes (Constantin et al., "The dynamic
 impact study of a crank connecting rod mechanism", Acta Tech. Napocensis 65,
-2022; data.md D) works in ADAMS kg-mm-s units.  Converted here:
+2022) works in ADAMS kg-mm-s units.  Converted here:
 
 - ADAMS ``IMPACT`` stiffness for exponent ``e``: ``F`` is in kg mm s^-2 = 1e-3 N
   and ``g`` in mm, so ``k_SI = k * 1e-3 * 1e3^e`` N/m^e (``k = 250000``,
-  ``e = 2`` -> 2.5e8 N/m^2, the :class:`~diffimpact.AdamsImpact` default);
+  ``e = 2`` -> 2.5e8 N/m^2, the `diffimpact.AdamsImpact` default);
   ``c_max`` [kg/s] is the same number in N s/m; ``d`` [mm] -> ``1e-3 d`` m.
 - The Hertz stiffness ``K = 4/(3 pi (h1 + h2)) sqrt(R)`` the source evaluates
   from E in MPa (= N/mm^2) and R in mm is in N/mm^1.5; in SI it is
   ``K * 1e3^1.5`` N/m^1.5.  Here it is always computed from the materials
-  (physics.md G-1, G-2), never typed in: steel/aluminium gives 249787.63
+  (G-1, G-2), never typed in: steel/aluminium gives 249787.63
   N/mm^1.5 and steel/cast iron 331779.78 N/mm^1.5, 6.6e-5 and 3.8e-6 below the
   values the source prints (249804.08, 331781.04) from the same formula
   (tests/test_materials.py).
@@ -71,7 +71,7 @@ class MechanismScales(eqx.Module):
 
 
 class AbstractMechanism(AbstractValidated):
-    """What :func:`diffimpact.simulate_span` needs from a scene (see the module
+    """What `diffimpact.simulate_span` needs from a scene (see the module
     docstring for the equations).
 
     Every method must return finite values for *any* state, not only the
@@ -124,15 +124,15 @@ class AbstractMechanism(AbstractValidated):
 class BouncingBar(AbstractRod, AbstractMechanism):
     """A free rigid bar with hemispherical ends dropped onto a flat board under
     gravity, bouncing until it settles (source: Constantin et al. 2022, section
-    2.1, the bar on the flat board; data.md D; physics.md section 6).
+    2.1, the bar on the flat board; docs/physics/scenes.md).
 
-    The bar is the :class:`FreeBar` of the single-impact solver (same fields,
+    The bar is the `FreeBar` of the single-impact solver (same fields,
     same geometry) with its *other* end able to touch too.  ``q = (x, y,
     theta)``: centre of mass and the angle between the bar axis and the board
     (the board is ``y = 0``); end A lies on the ``+x`` side and is the lower
     one for ``theta > 0``.  Both ends are hemispheres of radius ``R_b`` centred
     at ``l = L/2 - R_b`` from the centre of mass on the axis; the contact point
-    of an end is the lowest point of its cap (physics.md section 6), so
+    of an end is the lowest point of its cap (docs/physics/scenes.md), so
 
         ``d_A = R_b + l sin(theta) - y``,   ``d_B = R_b - l sin(theta) - y``,
         ``J_n,A = (0, -1,  l cos(theta))``, ``J_t,A = (1, 0, -(l sin(theta) + R_b))``,
@@ -145,30 +145,30 @@ class BouncingBar(AbstractRod, AbstractMechanism):
 
     **Start.** At rest, without spin, with the lowest point of end A ``height``
     ``h`` above the board at ``theta = angle``: the first impact is exactly
-    :meth:`first_impact` (a :class:`FreeBar`), reached at ``v' = sqrt(2 g h)``.
+    `first_impact` (a `FreeBar`), reached at ``v' = sqrt(2 g h)``.
 
     **Laws.** The source's board model is ADAMS ``IMPACT`` with (kg-mm-s)
     ``k = 250000``, ``e = 2``, ``c_max = 10``, ``d = 0.1``: in SI
     ``AdamsImpact(2.5e8, 2.0, 10.0, 1e-4)``, the defaults of
-    :class:`~diffimpact.AdamsImpact` (conversion in the module docstring);
+    `diffimpact.AdamsImpact` (conversion in the module docstring);
     its second model ``(k = 307692, e = 2.2 | 1.95, c_max = 0.08, d = 0.01)`` is
     ``AdamsImpact(307692 * 1e-3 * 1e3**e, e, 0.08, 1e-5)``.  ``Hertz()`` and
     ``JacksonGreen()`` use the materials (``R = R_b`` on a flat, G-2).  The
     source gives no bar dimensions for this model: the defaults are those of
-    data.md B.
+    Wang & Fu (2019).
 
-    **Arguments:** as :class:`FreeBar`: `mass` [kg]; `body`, `flat`
+    **Arguments:** as `FreeBar`: `mass` [kg]; `body`, `flat`
     (materials); `height` ``h`` [m] (> 0); `length` [m] (0.08); `diameter` [m]
     (0.01); `angle` [rad] in (0, pi/2] (pi/4); `tip_radius` [m] (``diameter /
     2``); `gravity` [m/s^2] (9.81); `cross_section_inertia` (static, False).
 
-    :meth:`report` adds ``angle``, ``angular_velocity`` (``theta_dot``),
+    `report` adds ``angle``, ``angular_velocity`` (``theta_dot``),
     ``height`` (``y``) and ``mechanical_energy``.
     """
 
     def first_impact(self) -> FreeBar:
         """The first impact as the single-impact scene (for
-        :func:`diffimpact.simulate`)."""
+        `diffimpact.simulate`)."""
         return FreeBar(
             self.mass,
             self.body,
@@ -255,7 +255,7 @@ def _safe_norm(x, y):
 class SliderCrank(AbstractMechanism):
     """Crank, connecting rod and piston with a radial clearance in the joint
     between the connecting rod's small end (the bearing) and the piston pin
-    (source: Constantin et al. 2022, section 2.2; data.md D).
+    (source: Constantin et al. 2022, section 2.2).
 
     **Geometry.** The crank (length ``r``) turns about the origin by ``phi``;
     the crank pin ``A = r (cos phi, sin phi)`` is an ideal revolute joint.  The
@@ -278,7 +278,7 @@ class SliderCrank(AbstractMechanism):
     R_b beta_dot`` with ``t = (-n_y, n_x)`` (the pin does not turn; the
     bearing turns with the rod).  The contact stiffness is Hertz's
     ``(4/3) E* sqrt(R)`` with ``R = R_pin R_bearing / (R_pin + R_bearing)``:
-    the two cylinders treated as convex, as the source does (physics.md G-2;
+    the two cylinders treated as convex, as the source does (G-2;
     the conformal value ``R_pin R_bearing / (R_bearing - R_pin)`` would be
     2000 times larger).  Note that the source's radii (20 and 20.02 mm) differ
     by 0.02 mm while its radial clearance is 0.03 mm; the radii enter only
@@ -305,7 +305,7 @@ class SliderCrank(AbstractMechanism):
     ``m_3 = 0.8 kg``, ``J_O = 0.01 kg m^2``, ``T_0 = 0.1 N m`` are ours.  The
     mechanism starts at rest at ``phi = phi0`` with the pin centred in the
     bearing (``e = 0``).  Pin: steel (E 210 GPa, nu 0.3); bearing: aluminium
-    (71 GPa, 0.33) by default; :meth:`cast_iron_bearing` gives the source's
+    (71 GPa, 0.33) by default; `cast_iron_bearing` gives the source's
     second pair (110 GPa, 0.28).
 
     **Arguments:** `crank_length` ``r`` [m]; `rod_length` ``l`` [m];
@@ -316,7 +316,7 @@ class SliderCrank(AbstractMechanism):
     `motor_torque` ``T_0`` [N m]; `motor_speed` ``omega_0`` [rad/s] (> 0);
     `crank_angle` ``phi0`` [rad]; `gravity` [m/s^2] (>= 0).
 
-    :meth:`report` gives ``piston_position`` ``x_p``, ``crank_angle``,
+    `report` gives ``piston_position`` ``x_p``, ``crank_angle``,
     ``crank_speed``, ``rod_angle``, ``motor_torque``, the contact force on the
     pin ``joint_force_x``, ``joint_force_y`` (normal plus friction) [N], its
     magnitude ``joint_force``, and ``ideal_piston_position`` (the rigid
@@ -375,7 +375,7 @@ class SliderCrank(AbstractMechanism):
 
     def cast_iron_bearing(self) -> SliderCrank:
         """The same mechanism with the source's steel/cast-iron pair
-        (bearing E = 110 GPa, nu = 0.28; data.md D)."""
+        (bearing E = 110 GPa, nu = 0.28; Constantin et al. 2022)."""
         return eqx.tree_at(lambda s: s.bearing, self, Material(110e9, 0.28))
 
     @property

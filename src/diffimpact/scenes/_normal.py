@@ -1,4 +1,4 @@
-"""Scenes with one normal degree of freedom (physics.md section 6)."""
+"""Scenes with one normal degree of freedom (docs/physics/scenes.md)."""
 
 from __future__ import annotations
 
@@ -17,7 +17,7 @@ class NormalImpact(AbstractScene):
     **Arguments:**
 
     - `mass` [kg] > 0; `radius` [m] > 0 (of the sphere or tip);
-    - `body`, `flat`: :class:`~diffimpact.Material` of the moving body and the flat;
+    - `body`, `flat`: `diffimpact.Material` of the moving body and the flat;
     - `velocity`: normal approach speed at first contact [m/s], > 0;
     - `gravity`: acceleration pushing the body into the flat [m/s^2] (default 0:
       gravity neglected, as it is against contact forces of kN over microseconds).
@@ -48,7 +48,7 @@ class NormalImpact(AbstractScene):
 
 
 class Collinear(AbstractScene):
-    """Two bodies colliding along their common normal (physics.md section 6).
+    """Two bodies colliding along their common normal (docs/physics/scenes.md).
 
     Body 1 (behind) moves at ``velocity1`` and catches body 2 moving at
     ``velocity2`` along the same line, so ``velocity1 > velocity2``.  The impact is

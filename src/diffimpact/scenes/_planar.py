@@ -1,4 +1,4 @@
-"""Planar rigid bodies against a fixed flat (physics.md section 6).
+"""Planar rigid bodies against a fixed flat (docs/physics/scenes.md).
 
 A planar scene has generalised coordinates ``q`` (n of them) with a constant
 diagonal mass matrix, and says where its contact point is: the interference
@@ -55,7 +55,7 @@ class AbstractPlanarScene(AbstractScene):
 
     @abc.abstractmethod
     def contact(self):
-        """The :class:`ContactProperties` of the pair."""
+        """The `ContactProperties` of the pair."""
 
     def report(self, q, q_dot) -> dict:
         """What an experimenter measures, from the state after separation."""
@@ -64,7 +64,7 @@ class AbstractPlanarScene(AbstractScene):
 
 class SphereOnIncline(AbstractPlanarScene):
     """A ball dropped vertically from height ``h`` onto a plane tilted ``phi``
-    (data.md A: the Alaci ball-prism experiments).
+    (the ball-prism experiments of Alaci, Filote & Ciornei; `data/ball_prism.csv`).
 
     Coordinates ``q = (n, t, theta)`` in the plane's frame: ``n`` into the plane
     (so ``d = n``), ``t`` down the slope, ``theta`` the spin, with ``v_t =
@@ -108,7 +108,7 @@ class SphereOnIncline(AbstractPlanarScene):
 
     @property
     def impact_speed(self):
-        """``v' = sqrt(2 g h)`` [m/s] (data.md A)."""
+        """``v' = sqrt(2 g h)`` [m/s] (Alaci, Filote & Ciornei)."""
         return jnp.sqrt(2.0 * self.gravity * self.height)
 
     @property

@@ -1,0 +1,147 @@
+"""The documentation: the site builds without a warning (notebooks executed),
+every Python block in README and docs runs as written, nothing points at a
+file, section or issue that is not in this repository, every equation tag
+has its anchor, and the README fits on two screens."""
+
+import importlib.util
+import os
+import pathlib
+import re
+import subprocess
+import sys
+
+import matplotlib
+import pytest
+
+matplotlib.use("Agg")
+ROOT = pathlib.Path(__file__).parent.parent
+DOCS = ROOT / "docs"
+HOOKS_SPEC = importlib.util.spec_from_file_location("docs_hooks", DOCS / "hooks.py")
+HOOKS = importlib.util.module_from_spec(HOOKS_SPEC)
+HOOKS_SPEC.loader.exec_module(HOOKS)
+
+PAGES = sorted(DOCS.rglob("*.md"))
+# what a reader of the site or of the package sees: README, docs (with the
+# pages generated from RESULTS.md and CHANGELOG.md), the rendered notebooks
+# and the package's docstrings and comments
+SHOWN = (
+    [ROOT / "README.md", ROOT / "CHANGELOG.md", ROOT / "benchmarks" / "RESULTS.md"]
+    + PAGES
+    + sorted((ROOT / "notebooks").glob("*.ipynb"))
+    + sorted((ROOT / "src" / "diffimpact").rglob("*.py"))
+)
+NOTEBOOKS = sorted((ROOT / "notebooks").glob("*.ipynb"))
+
+
+def python_blocks():
+    for path in [ROOT / "README.md", *PAGES]:
+        text = path.read_text()
+        blocks = re.findall(r"^```python\n(.*?)^```", text, flags=re.M | re.S)
+        for i, block in enumerate(blocks):
+            yield pytest.param(path, block, id=f"{path.relative_to(ROOT)}[{i}]")
+
+
+@pytest.mark.parametrize("path, block", list(python_blocks()))
+def test_python_block_runs(path, block, monkeypatch, tmp_path):
+    """Each block on its own, from the repository root, in a fresh namespace:
+    no block may depend on another."""
+    monkeypatch.chdir(ROOT)
+    monkeypatch.setenv("DIFFIMPACT_NOTEBOOK_OUT", str(tmp_path))
+    namespace = {"__name__": "__main__"}
+    try:
+        exec(compile(block, str(path), "exec"), namespace)
+    finally:
+        import matplotlib.pyplot as plt
+
+        plt.close("all")
+
+
+# a developer's working notes are not in this repository, nor is the tracker
+FORBIDDEN = re.compile(
+    r"physics\.md|data\.md|\.\./shared|\bspec/|style\.md|pitfalls\.md"
+    r"|architecture\.md|(?<!GitHub )\bissues? #?\d+\b",
+    flags=re.I,
+)
+# a repository path written in text: it must exist
+PATH = re.compile(
+    r"(?<![\w./-])(?:src|tests|benchmarks|data|docs|notebooks|\.ci)/[\w./*-]*\w"
+)
+
+# folders that the examples create when they run
+WRITTEN = {"notebooks/figures"}
+
+
+@pytest.mark.parametrize("path", SHOWN, ids=lambda p: str(p.relative_to(ROOT)))
+def test_no_reference_to_what_is_not_here(path):
+    text = path.read_text()
+    bad = sorted({m.group(0) for m in FORBIDDEN.finditer(text)})
+    assert not bad, f"{path.relative_to(ROOT)} refers to {bad}"
+    missing = sorted(
+        p
+        for p in {m.group(0).rstrip(".") for m in PATH.finditer(text)}
+        if not any(ROOT.glob(p)) and p not in WRITTEN
+    )
+    assert not missing, f"{path.relative_to(ROOT)} names missing files {missing}"
+
+
+def test_every_equation_tag_has_an_anchor():
+    anchors = HOOKS.physics_anchors()
+    assert {"H-1", "JG-5", "JG-10", "F-1", "F-2"} <= set(anchors), sorted(anchors)
+    cited = {}
+    for path in SHOWN:
+        for tag in HOOKS.TAG.findall(path.read_text()):
+            cited.setdefault(tag, path.relative_to(ROOT))
+    undefined = {t: str(p) for t, p in cited.items() if t not in anchors}
+    assert not undefined, f"tags cited but defined on no Physics page: {undefined}"
+
+
+def test_readme_fits_on_two_screens():
+    text = (ROOT / "README.md").read_text()
+    assert len(text.splitlines()) <= 200, len(text.splitlines())
+    first = re.search(r"^```\w*\n(.*?)^```", text, flags=re.M | re.S).group(1)
+    commands = [line.split("#")[0].strip() for line in first.strip().splitlines()]
+    ci = (ROOT / ".ci" / "run").read_text().strip().splitlines()[-1]
+    assert len(commands) == 2 and commands[1] == ci, (commands, ci)
+    assert commands[0].startswith("pip install -e . && diffimpact "), commands
+
+
+def test_site_builds_with_executed_notebooks(tmp_path):
+    """``mkdocs build --strict`` (any warning fails it), the notebooks executed
+    in small mode by a Jupyter kernel, each saving its figures."""
+    figures = tmp_path / "figures"
+    env = dict(
+        os.environ,
+        NO_MKDOCS_2_WARNING="1",
+        DIFFIMPACT_DOCS_EXECUTE="true",
+        DIFFIMPACT_NOTEBOOK_SMALL="1",
+        DIFFIMPACT_NOTEBOOK_OUT=str(figures),
+    )
+    site = tmp_path / "site"
+    out = subprocess.run(
+        [sys.executable, "-m", "mkdocs", "build", "--strict", "-d", str(site)],
+        cwd=ROOT,
+        env=env,
+        capture_output=True,
+        text=True,
+        timeout=900,
+    )
+    log = out.stdout + out.stderr
+    assert out.returncode == 0, log[-4000:]
+    warnings = [line for line in log.splitlines() if line.startswith("WARNING")]
+    assert not warnings, warnings
+    for page in ["physics/contact", "cli", "api", "validation", "performance"]:
+        assert (site / page / "index.html").is_file(), page
+    for nb in NOTEBOOKS:
+        number = nb.name.split("_")[0]
+        assert list(figures.glob(f"{number}_*.png")), f"{nb.name} saved no figure"
+        html = (site / "notebooks" / nb.stem / "index.html").read_text()
+        assert "Traceback" not in html, nb.name
+    # the example that optimises through the simulator: its loss falls
+    html = (site / "notebooks" / "05_design_layer" / "index.html").read_text()
+    first, last = map(
+        float, re.search(r"loss ([-+.\d]+) -&gt; ([-+.\d]+)", html).groups()
+    )
+    assert last < first, (first, last)
+    # equation tags in docstrings link to the Physics pages
+    api = (site / "api" / "index.html").read_text()
+    assert 'href="../physics/contact/#JG-5"' in api
