@@ -145,3 +145,25 @@ def test_site_builds_with_executed_notebooks(tmp_path):
     # equation tags in docstrings link to the Physics pages
     api = (site / "api" / "index.html").read_text()
     assert 'href="../physics/contact/#JG-5"' in api
+
+
+def results_sections():
+    text = (ROOT / "benchmarks" / "RESULTS.md").read_text()
+    parts = re.split(r"^## (.*)$", text, flags=re.M)
+    return {
+        title.split(" (")[0].strip(): body
+        for title, body in zip(parts[1::2], parts[2::2], strict=True)
+    }
+
+
+def test_readme_numbers_are_the_results_file_numbers():
+    """The README's measured numbers are quoted from ``benchmarks/RESULTS.md``:
+    each row names its section, and every number in the row stands there."""
+    text = (ROOT / "README.md").read_text()
+    sections = results_sections()
+    rows = re.findall(r"^\| (.+?) \| (.+?) \| (.+?) \|$", text, flags=re.M)
+    rows = [r for r in rows if r[2] in sections]
+    assert len(rows) >= 4, rows
+    for what, measured, section in rows:
+        for number in re.findall(r"\d[\d,.]*(?:e-\d+)?x?", measured):
+            assert number in sections[section], (what, number, section)
