@@ -34,10 +34,10 @@ from ._root import newton_root
 from ._smooth import safe_sqrt
 
 # Chebyshev samples of the plastic force for its cumulative work from d to
-# d_m (see `solve_quadrature`).  Against the nested Gauss rule it replaced
-# (order x 16 force evaluations per impact, itself 4e-11 from a tight event
-# solve on the loading time) on 8,192 random impacts: 24 samples agree to
-# 5e-13, 16 to 1.6e-8.
+# d_m (see `solve_quadrature`).  Against a nested Gauss rule (order x 16
+# force evaluations per impact, itself 4e-11 from a tight event solve on the
+# loading time) on 8,192 random impacts: 24 samples agree to 5e-13, 16 to
+# 1.6e-8.
 _CHEB_ORDER = 24
 
 

@@ -122,8 +122,8 @@ class JacksonGreen(AbstractNormalLaw):
         # (simulate rejects deeper ones): clamp it there.  That keeps S_y = inf
         # ("never yields") finite in every branch, and keeps the unused
         # elasto-plastic branch inside the range of its formulas, so gradients
-        # through the branch select stay finite (with the old clamp S_y <= E*
-        # the switch sat ~12 R deep and the unused branch gave NaN gradients).
+        # through the branch select stay finite (a looser cap, S_y <= E*, puts
+        # the switch ~12 R deep, where the unused branch has NaN gradients).
         s_cap = 2.0 * e_star / (jnp.pi * c) * jnp.sqrt(MAX_DEPTH / self.elastic_limit)
         s_y = jnp.minimum(contact.yield_strength, s_cap)
         d_c = (jnp.pi * c * s_y / (2.0 * e_star)) ** 2 * radius  # JG-2
