@@ -65,11 +65,28 @@ def _is_conservative(bound) -> bool:
     return not (bound.hysteretic or bound.rate_dependent)
 
 
+class NormalState(eqx.Module):
+    """The 1-DOF solve's state, every field scaled by the impact's units.
+
+    Which optional parts exist is decided at trace time from the law's flags
+    (None otherwise): a conservative law carries only ``x`` and ``u``; a
+    hysteretic or rate-dependent one the loading history (smooth method); a
+    rate-dependent one its running peak force."""
+
+    x: jax.Array  # d / d_ref
+    u: jax.Array  # d_dot / v0
+    max_deflection: jax.Array | None = None  # d_m / d_ref (JG-7)
+    loading_time: jax.Array | None = None  # time spent loading / T
+    peak_force: jax.Array | None = None  # running peak force / force unit
+
+
+def _last(ys):
+    """The final state of a solve saved at ``t1``."""
+    return jax.tree.map(lambda a: a[-1], ys)
+
+
 # --------------------------------------------------------------------------
-# Vector fields.  State (scaled): [x, u, (x_m, tau_load), (q)]
-#   x = d / d_ref, u = d_dot / v0, x_m = max compression, tau_load = time spent
-#   loading, q = peak force / force unit.  Which entries exist is decided at
-#   trace time from the law's flags: a conservative law carries only [x, u].
+# Vector fields
 # --------------------------------------------------------------------------
 
 
@@ -102,32 +119,38 @@ def _peak_rate(force_fn, force, q, d, v, acc, sc):
     return jnp.maximum(dfdt, 0.0) * sc.time / sc.force * at_max
 
 
-def _smooth_field(t, y, args):
+def _smooth_field(t, y: NormalState, args) -> NormalState:
     bound, sc, settings = args
-    x, u = y[0], y[1]
-    d, v = x * sc.length, u * sc.speed
-    d_m = y[2] * sc.length if bound.hysteretic else None
+    d, v = y.x * sc.length, y.u * sc.speed
+    d_m = y.max_deflection * sc.length if bound.hysteretic else None
     force = _smooth_force(bound, d, v, d_m, settings, sc.speed)
     du = -force / sc.force + sc.gravity
-    parts = [u, du]
+    rates = NormalState(x=y.u, u=du)
     if not _is_conservative(bound):
-        s = step(u, settings.velocity_width)
-        parts += [s * u, s]
+        s = step(y.u, settings.velocity_width)
+        rates = eqx.tree_at(
+            lambda r: (r.max_deflection, r.loading_time),
+            rates,
+            (s * y.u, s),
+            is_leaf=lambda a: a is None,
+        )
     if bound.rate_dependent:
         acc = du * sc.speed**2 / sc.length
 
         def force_fn(dd, vv):
             return bound.loading_force_smooth(dd, vv, settings.phase_width)
 
-        parts.append(_peak_rate(force_fn, force, y[-1], d, v, acc, sc))
-    return jnp.stack(parts)
+        peak = _peak_rate(force_fn, force, y.peak_force, d, v, acc, sc)
+        rates = eqx.tree_at(
+            lambda r: r.peak_force, rates, peak, is_leaf=lambda a: a is None
+        )
+    return rates
 
 
 def _phase_field(t, y, args):
     """Sharp vector field of one phase (``events`` method)."""
     bound, sc, phase, d_m, f_m = args
-    x, u = y[0], y[1]
-    d, v = x * sc.length, u * sc.speed
+    d, v = y.x * sc.length, y.u * sc.speed
 
     def force_fn(dd, vv):
         if phase == "unload":
@@ -136,11 +159,11 @@ def _phase_field(t, y, args):
 
     force = force_fn(d, v)
     du = -force / sc.force + sc.gravity
-    parts = [u, du]
+    peak = None
     if bound.rate_dependent:
         acc = du * sc.speed**2 / sc.length
-        parts.append(_peak_rate(force_fn, force, y[-1], d, v, acc, sc))
-    return jnp.stack(parts)
+        peak = _peak_rate(force_fn, force, y.peak_force, d, v, acc, sc)
+    return NormalState(x=y.u, u=du, peak_force=peak)
 
 
 def _default_float(cond):
@@ -221,13 +244,17 @@ def _event_time(sol):
     return sol.ts[-1], result
 
 
-def _y0(bound, dtype, smooth: bool):
-    n = 2
-    if smooth and not _is_conservative(bound):
-        n += 2
-    if bound.rate_dependent:
-        n += 1
-    return jnp.zeros(n, dtype).at[1].set(1.0)
+def _y0(bound, dtype, smooth: bool) -> NormalState:
+    """First contact: ``x = 0``, ``u = 1``; only the parts the law needs."""
+    zero = jnp.zeros((), dtype)
+    history = smooth and not _is_conservative(bound)
+    return NormalState(
+        x=zero,
+        u=jnp.ones((), dtype),
+        max_deflection=zero if history else None,
+        loading_time=zero if history else None,
+        peak_force=zero if bound.rate_dependent else None,
+    )
 
 
 def _energy_max_deflection(problem, bound):
@@ -257,11 +284,11 @@ def _solve_smooth(problem, bound, settings, n_history):
 
     def separation(t, y, args, **kw):
         x_r = (
-            bound.residual_deflection(y[2] * sc.length) / sc.length
+            bound.residual_deflection(y.max_deflection * sc.length) / sc.length
             if bound.hysteretic
             else 0.0
         )
-        return y[0] - x_r
+        return y.x - x_r
 
     sol, solved = _solve(
         _smooth_field,
@@ -273,10 +300,10 @@ def _solve_smooth(problem, bound, settings, n_history):
         dense=n_history > 0,
     )
     tau_end, separated = _event_time(sol)
-    y = sol.ys[-1]
+    y = _last(sol.ys)
     out = dict(
         contact_time=tau_end * sc.time,
-        rebound_velocity=-y[1] * sc.speed,
+        rebound_velocity=-y.u * sc.speed,
         num_steps=sol.stats["num_steps"],
         result=first_failure(solved, separated),
     )
@@ -285,15 +312,15 @@ def _solve_smooth(problem, bound, settings, n_history):
         out["max_deflection"] = _energy_max_deflection(problem, bound)
         out["compression_time"] = 0.5 * out["contact_time"]
     else:
-        out["max_deflection"] = y[2] * sc.length
-        out["compression_time"] = y[3] * sc.time
+        out["max_deflection"] = y.max_deflection * sc.length
+        out["compression_time"] = y.loading_time * sc.time
     if bound.rate_dependent:
-        out["max_force"] = y[-1] * sc.force
+        out["max_force"] = y.peak_force * sc.force
     if n_history > 0:
         taus = jnp.linspace(0.0, tau_end, n_history)
         ys = jax.vmap(sol.evaluate)(taus)
-        d, v = ys[:, 0] * sc.length, ys[:, 1] * sc.speed
-        d_m = ys[:, 2] * sc.length if bound.hysteretic else jnp.zeros_like(d)
+        d, v = ys.x * sc.length, ys.u * sc.speed
+        d_m = ys.max_deflection * sc.length if bound.hysteretic else jnp.zeros_like(d)
         force = jax.vmap(
             lambda a, b, c: _smooth_force(bound, a, b, c, settings, sc.speed)
         )(d, v, d_m)
@@ -303,6 +330,10 @@ def _solve_smooth(problem, bound, settings, n_history):
     return out
 
 
+def _select(pred, on_true, on_false):
+    return jax.tree.map(lambda a, b: jnp.where(pred, a, b), on_true, on_false)
+
+
 def _solve_events(problem, bound, settings):
     sc = _scales(problem, bound)
     dtype = jnp.result_type(sc.length)
@@ -310,7 +341,7 @@ def _solve_events(problem, bound, settings):
     two_phase = bound.n_loading_phases == 2
 
     def stop(t, y, args, **kw):  # interference rate falls to zero
-        return y[1]
+        return y.u
 
     none = jnp.zeros((), dtype)
     if two_phase:
@@ -328,7 +359,7 @@ def _solve_events(problem, bound, settings):
         u_s = jnp.where(kinetic_at_switch > 0, safe_sqrt(2.0 * kinetic_at_switch), -1.0)
 
         def switch(t, y, args, **kw):
-            return y[1] - u_s
+            return y.u - u_s
 
         # If both fire inside one step the switch came first: diffrax keeps the
         # first in pytree order (diffrax GitHub issue 639).
@@ -340,7 +371,7 @@ def _solve_events(problem, bound, settings):
     )
     t_a, stopped_a = _event_time(sol_a)
     codes = [solved_a, stopped_a]
-    y_a = sol_a.ys[-1]
+    y_a = _last(sol_a.ys)
     steps = sol_a.stats["num_steps"]
     if two_phase:
         switched = sol_a.event_mask[0]
@@ -349,10 +380,12 @@ def _solve_events(problem, bound, settings):
         # state (just past the switch, slowly approaching) and is discarded:
         # it must stay well posed so that neither values nor gradients of the
         # unused branch are NaN.
-        dummy = (
-            y0.at[0].set(1.01 * bound.switch_deflection() / sc.length).at[1].set(0.1)
+        dummy = eqx.tree_at(
+            lambda y: (y.x, y.u),
+            y0,
+            (1.01 * bound.switch_deflection() / sc.length, 0.1 * y0.u),
         )
-        y0_b = jnp.where(switched, y_a, dummy)
+        y0_b = _select(switched, y_a, dummy)
         sol_b, solved_b = _solve(
             _phase_field, y0_b, (bound, sc, 1, none, none), settings, stop, False
         )
@@ -363,36 +396,36 @@ def _solve_events(problem, bound, settings):
             RESULTS.where(switched, solved_b, ok),
             RESULTS.where(switched, stopped_b, ok),
         ]
-        y_load = jnp.where(switched, sol_b.ys[-1], y_a)
+        y_load = _select(switched, _last(sol_b.ys), y_a)
         t_load = jnp.where(switched, t_a + t_b, t_a)
         steps = steps + jnp.where(switched, sol_b.stats["num_steps"], 0)
     else:
         y_load, t_load = y_a, t_a
-    d_m = y_load[0] * sc.length
+    d_m = y_load.x * sc.length
     f_m = bound.loading_force(d_m, jnp.zeros_like(d_m), 1 if two_phase else 0)
     if two_phase:
         f_m = jnp.where(switched, f_m, bound.loading_force(d_m, 0.0 * d_m, 0))
     x_r = bound.residual_deflection(d_m) / sc.length
 
     def separation(t, y, args, **kw):
-        return y[0] - x_r
+        return y.x - x_r
 
-    y0_c = y_load.at[1].set(0.0)
+    y0_c = eqx.tree_at(lambda y: y.u, y_load, jnp.zeros_like(y_load.u))
     sol_c, solved_c = _solve(
         _phase_field, y0_c, (bound, sc, "unload", d_m, f_m), settings, separation, False
     )
     t_c, separated = _event_time(sol_c)
-    y_c = sol_c.ys[-1]
+    y_c = _last(sol_c.ys)
     out = dict(
         contact_time=(t_load + t_c) * sc.time,
         compression_time=t_load * sc.time,
-        rebound_velocity=-y_c[1] * sc.speed,
+        rebound_velocity=-y_c.u * sc.speed,
         max_deflection=d_m,
         num_steps=steps + sol_c.stats["num_steps"],
         result=first_failure(*codes, solved_c, separated),
     )
     if bound.rate_dependent:
-        out["max_force"] = y_c[-1] * sc.force
+        out["max_force"] = y_c.peak_force * sc.force
     return out
 
 
