@@ -41,10 +41,6 @@ from ._materials import Material as Material
 from ._materials import contact_properties as contact_properties
 from ._materials import effective_modulus as effective_modulus
 from ._materials import effective_radius as effective_radius
-from ._multi import SpanHistory as SpanHistory
-from ._multi import SpanImpacts as SpanImpacts
-from ._multi import SpanResult as SpanResult
-from ._multi import SpanSettings as SpanSettings
 from ._multi import simulate_span as simulate_span
 from ._observables import Experiment as Experiment
 from ._observables import predict as predict
@@ -59,6 +55,10 @@ from ._result import StepBudgetError as StepBudgetError
 from ._result import result_name as result_name
 from ._simulate import simulate as simulate
 from ._solver import SolverSettings as SolverSettings
+from ._span_types import SpanHistory as SpanHistory
+from ._span_types import SpanImpacts as SpanImpacts
+from ._span_types import SpanResult as SpanResult
+from ._span_types import SpanSettings as SpanSettings
 from ._sweep import grid as grid
 from ._sweep import normal_impact_row as normal_impact_row
 from ._sweep import sample as sample

@@ -1,0 +1,272 @@
+"""The span solver's vector field: Lagrange's equations of a mechanism with
+its contact forces and the accumulated works and impulses, on the scene's
+reference scales (the equations are in `diffimpact._multi`)."""
+
+from __future__ import annotations
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+from jaxtyping import Array
+
+from ._laws._dissipative import _AbstractDampedHertz
+from ._smooth import safe_pow, step
+from ._span_types import SpanSettings
+from .scenes._mechanisms import AbstractMechanism
+
+# Bound on the scaled states the vector field reads (see `_Span.field`).
+_STATE_BOUND = 1e6
+
+
+class SpanState(eqx.Module):
+    """The span solve's state, every field scaled (``n`` coordinates, ``nc``
+    contacts; units of `_Span`).  The optional parts are None when the law or
+    the settings do not need them."""
+
+    q: Array  # (n,) q / q_scale
+    q_dot: Array  # (n,) q_dot time / q_scale
+    applied_work: Array  # W_a / energy
+    impulses: Array  # (nc,) int F_n dt / impulse_unit
+    normal_work: Array  # (nc,) W_n = int F_n d_dot dt / energy
+    friction_work: Array  # (nc,) W_f = -int F_t v_t dt / energy
+    max_deflection: Array | None = None  # (nc,) d_m / length (hysteretic laws)
+    onset: Array | None = None  # (nc,) contact indicators (`_Span.onset_rate`)
+
+
+class _Span(eqx.Module):
+    """Everything the vector field needs, passed as diffrax ``args``."""
+
+    scene: AbstractMechanism
+    bound: object
+    friction: object
+    q_scale: Array
+    time: Array
+    speed: Array
+    energy: Array
+    impulse_unit: Array
+    length: Array  # penetration scale (of d_m and the contact switch)
+    n: int = eqx.field(static=True)
+    nc: int = eqx.field(static=True)
+    settings: SpanSettings = eqx.field(static=True)
+
+    @property
+    def hysteretic(self):
+        return self.bound.hysteretic
+
+    def unpack(self, y: SpanState):
+        """``q`` [m, rad], ``q_dot`` and ``d_m`` [m] (None) in SI units."""
+        q = y.q * self.q_scale
+        q_dot = y.q_dot * self.q_scale / self.time
+        d_m = y.max_deflection * self.length if self.hysteretic else None
+        return q, q_dot, d_m
+
+    def threshold(self, d_m):
+        """Penetration below which the contact is open: 0, or ``d_r(d_m)``."""
+        if self.hysteretic:
+            return self.bound.residual_deflection(d_m)
+        return None
+
+    def contact_forces(self, q, q_dot, d_m):
+        d, j_n, j_t = self.scene.kinematics(q)
+        v_n, v_t = j_n @ q_dot, j_t @ q_dot
+        f_n = (
+            jax.vmap(self._force)(d, v_n, d_m)
+            if self.hysteretic
+            else (jax.vmap(self._force)(d, v_n))
+        )
+        if self.friction is None:
+            f_t = jnp.zeros_like(f_n)
+        else:
+            width = self.settings.slip_width * self.speed
+            f_t = self.friction.force(f_n, v_t, width)
+        return d, j_n, j_t, v_n, v_t, f_n, f_t
+
+    def _force(self, d, v, d_m=None):
+        s = self.settings
+        f_load = self.bound.loading_force_smooth(d, v, s.phase_width)
+        if not self.hysteretic:
+            return f_load
+        f_m = self.bound.loading_force_smooth(d_m, jnp.zeros_like(d_m), s.phase_width)
+        f_unload = self.bound.unloading_force(d, v, d_m, f_m)
+        w = step(v / self.speed, s.velocity_width)
+        return w * f_load + (1.0 - w) * f_unload
+
+    def accelerations(self, t, q, q_dot, j_n, j_t, f_n, f_t):
+        sc = self.scene
+        w = sc.inertia_weights()
+        jac = jax.jacfwd(sc.positions)(q)
+
+        def velocity(qq):
+            return jax.jvp(sc.positions, (qq,), (q_dot,))[1]
+
+        convective = jax.jvp(velocity, (q,), (q_dot,))[1]
+        mass = jac.T @ (w[:, None] * jac)
+        applied = sc.applied_forces(t, q, q_dot)
+        rhs = (
+            -jac.T @ (w * convective)
+            - jax.grad(sc.potential)(q)
+            + applied
+            - j_n.T @ f_n
+            + j_t.T @ f_t
+        )
+        return jnp.linalg.solve(mass, rhs), applied
+
+    def field(self, tau, y: SpanState) -> SpanState:
+        t = tau * self.time
+
+        # A rejected trial stage of the adaptive solver can hold overflowed or
+        # NaN states (the Runge-Kutta stage arithmetic itself overflows on a
+        # wild trial step).  The step is discarded, but the backward pass still
+        # multiplies the field's derivative there by a zero cotangent, and
+        # 0 * NaN = NaN spreads into every gradient.  So the states the field
+        # reads non-linearly are made finite and bounded first: the identity
+        # on every real state (scaled states are O(1); 1e6 is never reached).
+        def bounded(x):
+            return jnp.clip(jnp.nan_to_num(x), -_STATE_BOUND, _STATE_BOUND)
+
+        read = SpanState(
+            q=bounded(y.q),
+            q_dot=bounded(y.q_dot),
+            applied_work=y.applied_work,
+            impulses=y.impulses,
+            normal_work=y.normal_work,
+            friction_work=y.friction_work,
+            max_deflection=bounded(y.max_deflection) if self.hysteretic else None,
+        )
+        q, q_dot, d_m = self.unpack(read)
+        d, j_n, j_t, v_n, v_t, f_n, f_t = self.contact_forces(q, q_dot, d_m)
+        q_ddot, applied = self.accelerations(t, q, q_dot, j_n, j_t, f_n, f_t)
+        tu = self.time
+        return SpanState(
+            q=y.q_dot,
+            q_dot=q_ddot * tu**2 / self.q_scale,
+            applied_work=applied @ q_dot * tu / self.energy,
+            impulses=f_n * tu / self.impulse_unit,
+            normal_work=f_n * v_n * tu / self.energy,
+            friction_work=-f_t * v_t * tu / self.energy,
+            max_deflection=(
+                _history_rate(self, d, v_n, d_m) * tu / self.length
+                if self.hysteretic
+                else None
+            ),
+            onset=(
+                self.onset_rate(y, f_n)
+                if self.settings.onset_step is not None
+                else None
+            ),
+        )
+
+    def onset_rate(self, y, f_n):
+        """Rate of the contact-indicator states ``z`` (one per contact):
+        ``z' = w H(F_n) - z`` in scaled time, ``H`` the unit step of the
+        normal force.  ``z`` never feeds back; its jump in slope where a
+        contact force switches on or off makes the error controller shrink the
+        step that straddles the switch to about ``onset_step`` of the impact
+        time scale ``d_ref / v_ref`` (``w`` is chosen so: ``w h = atol``),
+        instead of a step whose error in ``q`` merely meets the tolerance.
+        The switch is where the force (not the penetration) leaves zero: the
+        ADAMS law's ``max(0, k g^e + c(g) g_dot)`` lets go at ``g > 0`` on the
+        way out (a kink, C^0, in the force).  Known limit: the gradient with
+        respect to anything that moves that release point converges slowly
+        with the tolerance (the bar's first-bounce loss w.r.t. the drop height:
+        1.6e-2 at rtol 1e-11, 4.6e-3 at 1e-12; 3e-5 without the release, i.e.
+        ``max_damping = 0.1``), see tests/test_multi.py.  The values hardly
+        change, but the derivative of the discrete solve with
+        respect to anything that moves the instant of contact (a drop height,
+        a clearance) converges: see `SpanSettings`.  The decay ``-z``
+        keeps ``z = O(w)`` so that ``rtol |z|`` never loosens the control."""
+        s = self.settings
+        h_star = s.onset_step * self.length / self.speed / self.time
+        w = s.atol / h_star
+        return w * jnp.where(f_n > 0, 1.0, 0.0) - y.onset
+
+    def elastic_energy(self, d):
+        """``V_c = int_0^d K x^n dx`` per contact (non-hysteretic laws); 0 for
+        hysteretic ones (nothing is stored once the contact is open)."""
+        if self.hysteretic:
+            return jnp.zeros_like(d)
+        k, e = self.bound.scale()
+        return k * safe_pow(d, e + 1.0) / (e + 1.0)
+
+    def kinetic(self, q, q_dot):
+        v = jax.jvp(self.scene.positions, (q,), (q_dot,))[1]
+        return 0.5 * jnp.sum(self.scene.inertia_weights() * v**2)
+
+
+def _history_rate(p: _Span, d, v, d_m):
+    """Rate of the maximum compression ``d_m`` of a hysteretic law, per contact.
+
+    Inside the undeformed surface (``d > 0``) it is the single-impact rule:
+    ``d_m`` grows with ``d`` while loading (smooth indicator of ``v``, width
+    ``velocity_width`` of the reference speed) and is frozen while unloading
+    and after separation at ``d = d_r``.  Once the bodies are apart (``d < 0``)
+    the dent is forgotten, so that the next impact meets a fresh surface (the
+    bar lands elsewhere on the board): ``d_m`` decays at the rate
+    ``|v| / (|d| + eps)``, i.e. by the factor ``eps / (D + eps)`` on a flight
+    that takes the surfaces ``D`` apart and again on the way back, with
+    ``eps = 1e-3`` of the penetration scale.  (A flight of one micrometre thus
+    leaves less than 1e-8 of the last dent.)  The rate is large only near
+    ``d = 0``, where the steps are small anyway.  The in/out switch at ``d = 0``
+    is 1e-9 of the penetration scale wide, so ``d_m`` lags ``d`` by less than
+    1e-9 of it at the start of loading.  Not modelled: a surface that comes
+    back into its own dent before ``d`` falls below 0 (it would reload along
+    the virgin curve).
+    """
+    inside = step(d / p.length, 1e-9)
+    loading = step(v / p.speed, p.settings.velocity_width)
+    eps = 1e-3 * p.length
+    decay = d_m * jnp.abs(v) / (jnp.abs(d) + eps)
+    return inside * loading * v - (1.0 - inside) * decay
+
+
+def _bind(law, scene):
+    if isinstance(law, _AbstractDampedHertz):
+        raise ValueError(
+            f"{type(law).__name__} takes its damping from the approach speed of "
+            "one impact (D = f(e) / v0); over a span of many impacts there is no "
+            "single v0. Use AdamsImpact (damping c(d) d_dot), Hertz or "
+            "JacksonGreen with simulate_span."
+        )
+    return law.bind(scene.contact(), scene.scales().speed)
+
+
+def _setup(scene, law, friction, settings):
+    """The vector field's arguments and the scaled initial state ``y0`` (also
+    used by benchmarks/bench_multi.py to hand the very same ODE to scipy)."""
+    q0, q_dot0 = scene.initial_state()
+    n = q0.shape[0]
+    d0 = scene.kinematics(q0)[0]
+    nc = d0.shape[0]
+    sc = scene.scales()
+    bound = _bind(law, scene)
+    dtype = jnp.result_type(q0)
+    # Penetration scale: the interference at which the law's elastic part
+    # stores the reference energy, ((n + 1) E / K)^(1 / (n + 1)).
+    k, e = bound.scale()
+    length = ((e + 1.0) * sc.energy / k) ** (1.0 / (e + 1.0))
+    p = _Span(
+        scene=scene,
+        bound=bound,
+        friction=friction,
+        q_scale=sc.coordinates,
+        time=sc.time,
+        speed=sc.speed,
+        energy=sc.energy,
+        impulse_unit=sc.energy / sc.speed,
+        length=length,
+        n=n,
+        nc=nc,
+        settings=settings,
+    )
+    zeros = jnp.zeros(nc, dtype)
+    y0 = SpanState(
+        q=q0 / p.q_scale,
+        q_dot=q_dot0 * p.time / p.q_scale,
+        applied_work=jnp.zeros((), dtype),
+        impulses=zeros,
+        normal_work=zeros,
+        friction_work=zeros,
+        max_deflection=zeros if bound.hysteretic else None,
+        onset=zeros if settings.onset_step is not None else None,
+    )
+    return p, y0
