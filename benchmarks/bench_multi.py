@@ -52,7 +52,7 @@ def crank(clearance=3e-5, cast_iron=False):
 def ours(sc, t1, settings, mu=MU):
     law = di.Hertz(stiffness=sc.hertz_stiffness)
     return di.simulate_span(
-        sc, law, (0.0, t1), friction=di.Friction(mu), settings=settings
+        sc, law, (0.0, t1), friction=di.Friction(mu, stick="slope"), settings=settings
     )
 
 
@@ -76,7 +76,7 @@ def scipy_run(sc, t1, method, rtol, atol):
     states: scipy has no use for them)."""
     law = di.Hertz(stiffness=sc.hertz_stiffness)
     settings = di.SpanSettings(onset_step=None)
-    p, y0 = _setup(sc, law, di.Friction(MU), settings)
+    p, y0 = _setup(sc, law, di.Friction(MU, stick="slope"), settings)
     # scipy integrates a flat vector: the state pytree raveled (the same
     # order and the same numbers)
     flat0, unravel = ravel_pytree(y0)
@@ -240,7 +240,7 @@ def crank_span(clearance, stiffness, mu, t1, settings):
         di.scenes.SliderCrank(clearance=clearance),
         di.Hertz(stiffness=stiffness),
         (0.0, t1),
-        friction=di.Friction(mu),
+        friction=di.Friction(mu, stick="slope"),
         settings=settings,
     )
 

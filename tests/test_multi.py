@@ -213,7 +213,11 @@ def crank_run(t1, clearance=3e-5, mu=0.1, bearing=None, stiffness_factor=1.0):
         sc = eqx.tree_at(lambda s: s.bearing, sc, bearing)
     law = di.Hertz(stiffness=stiffness_factor * sc.hertz_stiffness)
     r = simulate_span(
-        sc, law, (0.0, t1), friction=di.Friction(mu), settings=CRANK_SETTINGS
+        sc,
+        law,
+        (0.0, t1),
+        friction=di.Friction(mu, stick="slope"),
+        settings=CRANK_SETTINGS,
     )
     return sc, r
 
@@ -436,7 +440,7 @@ def test_zero_clearance_follows_the_rigid_mechanism_over_a_revolution():
         sc,
         di.Hertz(stiffness=sc.hertz_stiffness),
         (0.0, t1),
-        friction=di.Friction(0.0),
+        friction=di.Friction(0.0, stick="slope"),
         settings=SpanSettings(max_steps=65536, max_impacts=8),
     )
     assert int(r.impacts.count) == 1  # closed all along
@@ -484,7 +488,11 @@ def test_zero_clearance_start_ups_over_a_revolution():
         sc = SliderCrank(clearance=0.0, crank_angle=phi0)
         law = di.Hertz(stiffness=sc.hertz_stiffness)
         r = simulate_span(
-            sc, law, (0.0, 1.0), friction=di.Friction(0.1), settings=CRANK_SETTINGS
+            sc,
+            law,
+            (0.0, 1.0),
+            friction=di.Friction(0.1, stick="slope"),
+            settings=CRANK_SETTINGS,
         )
         out = r.steps.outputs
         err = np.abs(
@@ -512,7 +520,7 @@ def _first_impact(p, settings):
         SliderCrank(clearance=clearance),
         di.Hertz(stiffness=stiffness),
         (0.0, 0.03),
-        friction=di.Friction(mu),
+        friction=di.Friction(mu, stick="slope"),
         settings=settings,
     )
     im = r.impacts
@@ -555,8 +563,12 @@ def test_wild_trial_state_gives_no_nan_gradient():
     from diffimpact._span_field import _setup
 
     cases = [
-        (SliderCrank(), di.Hertz(), di.Friction(0.1)),
-        (bar(), di.JacksonGreen(), di.Friction(0.2)),  # with the d_m state
+        (SliderCrank(), di.Hertz(), di.Friction(0.1, stick="slope")),
+        (
+            bar(),
+            di.JacksonGreen(),
+            di.Friction(0.2, stick="slope"),
+        ),  # with the d_m state
     ]
 
     def back(p, y):
@@ -700,6 +712,16 @@ def test_rejects_approach_speed_laws_and_wrong_scenes():
             ),
             "compliant",
         ),
+        (
+            # the exact hold needs a holding force that a mechanism lacks: the
+            # friction law is named, never swapped silently
+            lambda: simulate_span(
+                bar(), di.Hertz(), (0.0, 0.1), friction=di.Friction(0.1)
+            ),
+            "stick='slope'",
+        ),
+        (lambda: di.Friction(0.1, stick="creep"), "Friction.stick"),
+        (lambda: di.Friction(0.1, compliant=True, stick="slope"), "stick"),
     ],
 )
 def test_bad_input_names_the_field(make, match):

@@ -367,7 +367,7 @@ def _span(height, mu=0.2, max_steps=16384):
         bar,
         di.Hertz(),
         (0.0, 0.2),
-        friction=di.Friction(mu),
+        friction=di.Friction(mu, stick="slope"),
         settings=di.SpanSettings(max_steps=max_steps),
     )
 

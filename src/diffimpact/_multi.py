@@ -355,7 +355,14 @@ def simulate_span(
         raise ValueError(
             "`Friction(compliant=True)` (the Mindlin spring) is available in "
             "diffimpact.simulate's planar scenes, not in simulate_span: use "
-            "Friction(mu, mu_v) here"
+            "Friction(mu, mu_v, stick='slope') here"
+        )
+    if friction is not None and friction.stick != "slope":
+        raise ValueError(
+            "simulate_span has only the slope-only friction law (a mechanism "
+            "supplies no holding force for the exact hold): pass "
+            "Friction(..., stick='slope'), whose stuck contact creeps at "
+            "eps atanh(F_h / (mu F_n)) (eps the slip width)"
         )
     if not isinstance(settings, SpanSettings):
         raise TypeError("`settings` must be a diffimpact.SpanSettings")

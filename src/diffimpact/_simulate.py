@@ -89,6 +89,7 @@ def _exact_tangential(scene, friction) -> bool:
         and scene.tangential_decouples
         and friction is not None
         and not friction.compliant
+        and friction.stick == "hold"
         and friction.mu_v is None
     )
 
@@ -137,8 +138,8 @@ def _simulate(scene, law, method, settings, n_history, friction, throw):
 _NO_EXACT_TANGENTIAL = (
     "method='quadrature' with friction needs a scene whose tangential motion "
     "decouples (scenes.SphereOnIncline), rigid friction without a viscous "
-    "term (Friction(mu) or Friction(mu, mu_s=...), not compliant, mu_v not "
-    "given) and a rate-independent law (Hertz, JacksonGreen); use "
+    "term (Friction(mu) or Friction(mu, mu_s=...), not compliant, stick='hold', "
+    "mu_v not given) and a rate-independent law (Hertz, JacksonGreen); use "
     "method='smooth' (the ODE) otherwise"
 )
 

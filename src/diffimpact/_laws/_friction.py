@@ -41,6 +41,9 @@ _HOLD_CLIP = 10.0
 # contact sits, and a rounded corner leaves the force short of mu F_n there.
 _SPRING_CORNER = 1e-3
 
+# How a tangentially rigid contact is held at rest (`Friction.stick`).
+STICK_LAWS = ("hold", "slope")
+
 
 def _ratio(force, capacity):
     """``force / capacity`` where ``capacity > 1e-12 |force|``, else ``+-1e12``
@@ -75,9 +78,11 @@ class Friction(AbstractValidated):
     otherwise (docs/physics/friction.md).  In the smooth-switched vector field the
     switch at ``v_t = 0`` is spread over the slip width ``eps =
     SolverSettings.slip_width * v_ref`` (``v_ref`` the normal approach speed),
-    with ``x = v_t / eps``, in one of two forms.
+    with ``x = v_t / eps``, in one of two forms, chosen by the static field
+    ``stick``.
 
-    **Exact hold** (planar scenes: `force` with ``holding_force``).  The
+    **Exact hold** (``stick="hold"``, the default; `diffimpact.simulate`'s
+    planar scenes, which supply the holding force).  The
     scene supplies the *holding force* ``F_h``, the tangential force that
     keeps the slip velocity constant (from its rigid-body dynamics, without
     friction), and the friction force is
@@ -104,9 +109,9 @@ class Friction(AbstractValidated):
     or as soon as the demand exceeds ``mu_s F_n`` (``x_s = breakaway_slip``,
     default 1 in this form).
 
-    **Slope only** (`force` without ``holding_force``; used by
-    `diffimpact.simulate_span`, whose mechanisms are not one free rigid
-    body): ``sgn`` becomes ``tanh(x)``, and stick is approximated by the steep
+    **Slope only** (``stick="slope"``; every solver, and the only form
+    `diffimpact.simulate_span` has, whose mechanisms supply no holding
+    force): ``sgn`` becomes ``tanh(x)``, and stick is approximated by the steep
     slope near ``v_t = 0``: a held contact creeps at ``eps atanh(F_h / c)``, an
     error of order ``eps`` (1.1e-4 .. 1.7e-4 of a held bar's rebound at the
     default width).  F-2 here has ``x_s = breakaway_slip`` (default 4):
@@ -148,7 +153,9 @@ class Friction(AbstractValidated):
     None = plain F-1, bit-identical to ``Friction(mu, mu_v)``);
     `breakaway_slip`: ``x_s`` in slip widths (static; default None: 1 for the
     exact hold, 4 for the slope-only law); `compliant`: Mindlin tangential
-    compliance (static, default False: a tangentially rigid contact).
+    compliance (static, default False: a tangentially rigid contact);
+    `stick`: how a tangentially rigid contact is held at rest (static):
+    ``"hold"`` (default) the exact hold, ``"slope"`` the slope-only law.
     ``mu``, ``mu_v`` and ``mu_s`` are differentiable fields.
     """
 
@@ -157,6 +164,7 @@ class Friction(AbstractValidated):
     mu_s: Array | None
     breakaway_slip: float | None = eqx.field(static=True)
     compliant: bool = eqx.field(static=True)
+    stick: str = eqx.field(static=True)
 
     def __init__(
         self,
@@ -167,6 +175,7 @@ class Friction(AbstractValidated):
         mu_k=None,
         breakaway_slip=None,
         compliant=False,
+        stick="hold",
     ):
         if (mu is None) == (mu_k is None):
             raise TypeError(
@@ -178,6 +187,7 @@ class Friction(AbstractValidated):
         self.mu_s = None if mu_s is None else as_float(mu_s)
         self.breakaway_slip = None if breakaway_slip is None else float(breakaway_slip)
         self.compliant = bool(compliant)
+        self.stick = stick
 
     def _checks(self):
         out = [nonnegative(self.mu, "Friction.mu (kinetic coefficient mu_k)")]
@@ -197,6 +207,15 @@ class Friction(AbstractValidated):
     def __check_init__(self):
         # Static options; the numeric fields are checked by `_checks` (run at
         # construction by AbstractValidated and again at every solve's entry).
+        if self.stick not in STICK_LAWS:
+            raise ValueError(
+                f"`Friction.stick` must be one of {STICK_LAWS}, got {self.stick!r}"
+            )
+        if self.compliant and self.stick != "hold":
+            raise ValueError(
+                "`Friction(compliant=True)` is the Mindlin spring capped at mu "
+                "F_n; `stick` (how a rigid contact is held) does not apply to it"
+            )
         if self.compliant and self.mu_s is not None:
             raise ValueError(
                 "`Friction(compliant=True)` takes one coefficient `mu` (the "
@@ -213,23 +232,22 @@ class Friction(AbstractValidated):
         """The kinetic coefficient (the ``mu`` field)."""
         return self.mu
 
-    def breakaway(self, hold: bool) -> float:
+    def breakaway(self) -> float:
         """``breakaway_slip``, or its default for the law in use: 1 slip width
         with the exact hold, 4 for the slope-only law."""
         if self.breakaway_slip is not None:
             return self.breakaway_slip
-        return 1.0 if hold else 4.0
+        return 1.0 if self.stick == "hold" else 4.0
 
     @property
     def stick_band(self) -> float:
         """Half-width of the stick band, in slip widths: a contact point moving
         slower than this may be held by friction, a faster one slides with the
         full kinetic force.  5 for F-1 (``tanh(5) = 0.99991``); for F-2 it also
-        covers the static peak, ``max(5, breakaway_slip + 1)`` (the default
-        breakaway of the exact-hold law, which the planar scenes use)."""
+        covers the static peak, ``max(5, breakaway_slip + 1)``."""
         if self.mu_s is None:
             return _COULOMB_BAND
-        return max(_COULOMB_BAND, self.breakaway(hold=True) + 1.0)
+        return max(_COULOMB_BAND, self.breakaway() + 1.0)
 
     def viscous(self, slip_velocity, sign):
         """The viscous part ``mu_v |v_t| sign`` [N] (0 without a viscous term)."""
@@ -239,20 +257,25 @@ class Friction(AbstractValidated):
 
     def force(self, normal_force, slip_velocity, width, holding_force=None):
         """Tangential force [N] opposing ``slip_velocity`` [m/s] (F-1, F-2);
-        ``width`` [m/s] is the slip width ``eps``.  With ``holding_force`` [N]
-        (the force that keeps the slip velocity constant) the exact-hold law,
-        else the slope-only law (class docstring)."""
+        ``width`` [m/s] is the slip width ``eps``; ``holding_force`` [N], the
+        force that keeps the slip velocity constant, is what the exact hold
+        (``stick="hold"``) needs, and the slope-only law ignores it."""
         x = slip_velocity / width
         sign = jnp.tanh(x)
         viscous = self.viscous(slip_velocity, sign)
-        if holding_force is not None:
+        if self.stick == "hold":
+            if holding_force is None:
+                raise ValueError(
+                    "`Friction(stick='hold')` needs the scene's holding force; "
+                    "this solver has none: use Friction(..., stick='slope')"
+                )
             return self._hold_force(normal_force, x, holding_force) - viscous
         if self.mu_s is None:
             magnitude = self.mu * normal_force
             if self.mu_v is not None:
                 magnitude = magnitude + self.mu_v * jnp.abs(slip_velocity)
             return -magnitude * sign
-        u = x / self.breakaway(hold=False)
+        u = x / self.breakaway()
         peak = u * jnp.exp(0.5 * (1.0 - u * u))
         coulomb = self.mu * sign + (self.mu_s - self.mu) * peak
         return -normal_force * coulomb - viscous
@@ -279,7 +302,7 @@ class Friction(AbstractValidated):
             static = self.mu_s * normal_force
             demand = _ratio(holding_force, static)
             can_hold = jax.nn.sigmoid((1.0 - jnp.abs(demand)) / _HOLD_CORNER)
-            near_rest = jnp.exp(-0.5 * (x / self.breakaway(hold=True)) ** 2)
+            near_rest = jnp.exp(-0.5 * (x / self.breakaway()) ** 2)
             capacity = kinetic + (static - kinetic) * near_rest * can_hold
         u = _ratio(holding_force, capacity)
         excess = _HOLD_CORNER * jax.nn.softplus((jnp.abs(u) - 1.0) / _HOLD_CORNER)
