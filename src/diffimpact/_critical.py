@@ -11,7 +11,9 @@ parameter of the law, the friction or the scene works.
 ``newton_root`` itself is not called: its ``lax.while_loop`` compiles a solve
 (~20 s) even for a root already known to 1e-9 rad, and its JVP rule runs the
 loop again.  Here the primal costs forward solves only, and the derivative one
-reverse-mode gradient at each root (compiled once, cached).
+reverse-mode gradient at each root (compiled once, cached).  optimistix has
+no Brent solver; its bisection would need about 27 halvings of a 0.1 rad
+bracket to reach 1e-9 rad, where Brent's method takes about 8 forward solves.
 """
 
 from __future__ import annotations

@@ -5,6 +5,14 @@ elastic laws) and for the damping calibration.  The derivative comes from the
 implicit function theorem, ``dx/dtheta = -(df/dtheta)/(df/dx)`` at the root, so
 it is exact whatever the number of iterations, works in forward and reverse
 mode (custom_jvp transposes), and never differentiates through the loop.
+
+Why not ``optimistix.root_find(fn, optimistix.Newton(...))`` with its implicit
+adjoint, which does the same job: measured on the energy balance of the
+quadrature path (10,000 roots, vmapped, float64, 2-core CPU) it takes 9.3 ms
+against 1.5 ms here (6.2x; one root 6.4 against 5.9 us), for the same roots
+(2e-16) and gradients (9e-16); and its Newton differentiates ``fn`` in forward
+mode, which a ``fn`` holding a diffrax solve with the default (reverse-only)
+adjoint does not support (`diffimpact.damping_ratio`).
 """
 
 from __future__ import annotations
