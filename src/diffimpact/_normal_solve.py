@@ -20,6 +20,7 @@ import jax
 import jax.numpy as jnp
 import optimistix as optx
 
+from ._extrema import track_extrema
 from ._laws._base import AbstractBoundLaw
 from ._result import RESULTS, History, first_failure
 from ._root import newton_root
@@ -177,9 +178,23 @@ def _default_float(cond):
     return wrapped
 
 
-def _solve(field, y0, args, settings, conds, directions, dense=False, weights=None):
+def _solve(
+    field,
+    y0,
+    args,
+    settings,
+    conds,
+    directions,
+    dense=False,
+    weights=None,
+    extrema=(None, None),
+):
     """One diffrax solve that ends at the first of ``conds`` (real-valued,
     located by Newton so the end time is differentiable).
+
+    ``extrema``: ``(peak, least)``, functions ``(t, y, args) -> scalar`` whose
+    running maximum and minimum over the solve are returned in
+    ``sol.solver_state[1]`` (`diffimpact._extrema`); None: not tracked.
 
     ``y0`` is an array or a pytree of arrays (the planar solve's
     ``PlanarState``).  ``weights``: a pytree like ``y0`` scaling each state's
@@ -205,17 +220,20 @@ def _solve(field, y0, args, settings, conds, directions, dense=False, weights=No
         root_finder=optx.Newton(rtol=event_tol, atol=event_tol),
         direction=directions,
     )
+    solver = track_extrema(settings.solver, *extrema)
     # Times in the state's dtype, so that a float32 impact stays float32.
     sol = diffrax.diffeqsolve(
         diffrax.ODETerm(field),
-        settings.solver,
+        solver,
         t0=jnp.zeros((), dtype),
         t1=jnp.asarray(settings.max_time, dtype),
         dt0=None,
         y0=y0,
         args=args,
         stepsize_controller=diffrax.PIDController(rtol=rtol, atol=atol, norm=norm),
-        saveat=diffrax.SaveAt(t1=True, dense=dense),
+        saveat=diffrax.SaveAt(
+            t1=True, dense=dense, solver_state=solver is not settings.solver
+        ),
         event=event,
         max_steps=settings.max_steps,
         adjoint=adjoint,

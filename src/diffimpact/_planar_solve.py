@@ -1,14 +1,16 @@
 """One impact of a planar rigid-body scene with friction (smooth method).
 
-The state is a `PlanarState` in the impact's own units (length
-``d_ref``, time ``d_ref / v0`` of the normal problem with the effective normal
-mass ``1 / (J_n M^-1 J_n^T)``): scaled coordinates and velocities ``q / S``,
-``q_dot T / S`` with ``S_i = d_ref / max(|J_n,i|, |J_t,i|)`` (so that every
-coordinate moves O(1) during the contact), the maximum compression and the
-loading time, the accumulated impulses and works, and only what the scene
-needs besides (the running peak force of a rate-dependent law, the running
-minimum slip with friction, the Mindlin spring's stretch with compliant
-friction; None otherwise).  The normal force is the same smooth-switched law
+The state is a `PlanarState` in the impact's own units (length ``d_ref``, time
+``d_ref / v0`` of the normal problem with the effective normal mass ``1 / (J_n
+M^-1 J_n^T)``): scaled coordinates and velocities ``q / S``, ``q_dot T / S``
+with ``S_i = d_ref / max(|J_n,i|, |J_t,i|)`` (so that every coordinate moves
+O(1) during the contact), the maximum compression and the loading time, the
+accumulated impulses and works, and the Mindlin spring's stretch with compliant
+friction (None otherwise). The peak force of a rate-dependent law and the least
+slip with friction are not states: they are running extrema of the accepted
+steps (`diffimpact._extrema`), so every state feeds back into the motion and
+the step-size control weighs them alike (which also lets an implicit solver
+converge its stage equations). The normal force is the same smooth-switched law
 as the 1-DOF path (``_normal_solve._smooth_force``); friction (F-1 or F-2) is
 the exact-hold law of `Friction`, fed with the scene's holding force
 (`_Planar.holding_force`).
@@ -17,10 +19,8 @@ Slip classification (with friction only): ``s(t) = sigma v_t(t) / v_ref`` is the
 signed slip ratio of the contact point, ``v_ref`` the normal approach speed and
 ``sigma`` the sliding direction at first contact (``sign(v_t0)``; with no
 tangential approach, ``v_t0 = 0``, the direction in which the normal force
-starts to drive the contact point, ``sign(-J_t M^-1 J_n^T)``, else +1).  The
-state ``s_min`` is its running minimum over the contact, integrated like the
-running peak force: ``ds_min/dt = min(ds/dt, 0)`` while ``s`` is at its running
-minimum (a logistic indicator of width ``_SLIP_MIN_WIDTH``), 0 above it.
+starts to drive the contact point, ``sign(-J_t M^-1 J_n^T)``, else +1).
+``s_min`` is its least value over the contact.
 """
 
 from __future__ import annotations
@@ -33,7 +33,6 @@ from ._binding import within_model
 from ._laws._friction import _HOLD_CORNER, _SPRING_CORNER, _ratio, _saturate
 from ._normal_solve import (
     _event_time,
-    _peak_rate,
     _scales,
     _smooth_force,
     _solve,
@@ -42,15 +41,6 @@ from ._normal_solve import (
 from ._result import ImpactResult, first_failure
 from ._smooth import safe_sqrt, step
 from .scenes._base import NormalProblem
-
-# Width of the "slip ratio is at its running minimum" indicator, in slip-ratio
-# units (v_t / v_ref): the tracked minimum lags the true one by ~25 widths,
-# 2.5e-8, far inside the smallest slip width used (1e-6).
-_SLIP_MIN_WIDTH = 1e-9
-
-# Weight of the running peak force in the step-size error estimate (see
-# `solve_planar`).
-_PEAK_ERROR_WEIGHT = 1e-6
 
 # Compliant friction: rate (per ``d_ref / v0``, the impact's time unit; a
 # Hertz impact lasts 2.94) at which the Mindlin spring's stretch beyond the
@@ -67,8 +57,6 @@ class PlanarState(eqx.Module):
     loading_time: jax.Array  # compression time / T
     impulses: jax.Array  # (4,) normal and tangential, compression and restitution
     works: jax.Array  # (2,) normal work of compression and of restitution
-    peak_force: jax.Array | None = None  # running peak / force unit
-    min_slip: jax.Array | None = None  # running minimum of s = sigma v_t / v_ref
     spring: jax.Array | None = None  # Mindlin stretch / d_ref
 
 
@@ -151,30 +139,13 @@ class _Planar(eqx.Module):
 
 
 def _planar_field(t, y: PlanarState, p: _Planar) -> PlanarState:
-    sc, bound, settings = p.sc, p.bound, p.settings
+    sc, settings = p.sc, p.settings
     q, q_dot, d, j_n, j_t, v_n, v_t, f_n, f_t, bias = p.forces(y)
     q_ddot = (-j_n * f_n + j_t * f_t + p.gravity) * p.inv_mass
     s = step(v_n / p.v0, settings.velocity_width)
-    peak = min_slip = spring = None
-    if bound.rate_dependent:
-
-        def force_fn(dd, vv):
-            return bound.loading_force_smooth(dd, vv, settings.phase_width)
-
-        # d_ddot = J_n q_ddot + (dJ_n/dt) q_dot: the second term vanishes for a
-        # sphere on a plane but not for a rotating link or bar.
-        j_n_dot = jax.jvp(lambda qq: p.scene.kinematics(qq)[1], (q,), (q_dot,))[1]
-        acc = j_n @ q_ddot + j_n_dot @ q_dot
-        peak = _peak_rate(force_fn, f_n, y.peak_force, d, v_n, acc, sc)
-    if p.friction is not None:
-        # Running minimum of s = sigma v_t / v_ref, with
-        # dv_t/dt = J_t q_ddot + (dJ_t/dt) q_dot.
-        s_dot = p.slip_sign * (j_t @ q_ddot + bias) * sc.time / p.v0
-        s_now = p.slip_sign * v_t / p.v0
-        at_min = step(y.min_slip - s_now, _SLIP_MIN_WIDTH)
-        min_slip = jnp.minimum(s_dot, 0.0) * at_min
-        if p.friction.compliant:
-            spring = p.spring_rate(y, d, f_n, v_t)
+    spring = None
+    if p.friction is not None and p.friction.compliant:
+        spring = p.spring_rate(y, d, f_n, v_t)
     rate = sc.time / p.impulse_unit
     return PlanarState(
         q=y.q_dot,
@@ -185,8 +156,6 @@ def _planar_field(t, y: PlanarState, p: _Planar) -> PlanarState:
         works=jnp.stack([s * f_n * v_n, -(1.0 - s) * f_n * v_n])
         * sc.time
         / p.work_unit,
-        peak_force=peak,
-        min_slip=min_slip,
         spring=spring,
     )
 
@@ -267,24 +236,22 @@ def planar_setup(scene, law, friction, settings):
         loading_time=zero,
         impulses=jnp.zeros(4, v0.dtype),
         works=jnp.zeros(2, v0.dtype),
-        peak_force=zero if bound.rate_dependent else None,
-        min_slip=slip_sign * v_t0 / v0 if has_friction else None,
         spring=zero if compliant else None,
     )
-    # The running peak force and the running minimum slip are diagnostics
-    # with 1e-9-wide switches that never feed back.  Fully error-controlled,
-    # the peak force alone dictates the steps (HC incline: 288 steps against
-    # 124); left out, it is 2e-3 off.  Its tolerance is loosened 1e6-fold
-    # instead: 126 steps, 4.7e-5 off (measured, HC e = 0.7, 45 deg).  The slip
-    # minimum is left out (noise ~3e-5 slip widths, see `critical_angles`).
-    weights = jax.tree.map(jnp.ones_like, y0)
-    if bound.rate_dependent:
-        weights = eqx.tree_at(
-            lambda w: w.peak_force, weights, jnp.full_like(zero, _PEAK_ERROR_WEIGHT)
-        )
-    if has_friction:
-        weights = eqx.tree_at(lambda w: w.min_slip, weights, zero)
-    return p, y0, weights, inside
+    # Every state feeds back into the motion, so every state is
+    # error-controlled alike (no weights); the peak force and the least slip
+    # are not states but running extrema of the accepted steps (`_extrema`).
+    return p, y0, None, inside
+
+
+def _peak_force(t, y: PlanarState, p: _Planar):
+    """Normal force in force units (its running maximum is the peak force)."""
+    return p.forces(y)[7] / p.sc.force
+
+
+def _slip_ratio(t, y: PlanarState, p: _Planar):
+    """``s = sigma v_t / v_ref`` (module docstring)."""
+    return p.slip_sign * p.forces(y)[6] / p.v0
 
 
 def solve_planar(scene, law, friction, settings):
@@ -292,20 +259,31 @@ def solve_planar(scene, law, friction, settings):
     sc, bound = p.sc, p.bound
     t_unit, impulse_unit, work_unit = sc.time, p.impulse_unit, p.work_unit
     v0, v_t0, slip_sign = p.v0, p.v_t0, p.slip_sign
+    extrema = (
+        _peak_force if bound.rate_dependent else None,
+        _slip_ratio if friction is not None else None,
+    )
     sol, solved = _solve(
-        _planar_field, y0, p, settings, _separation, False, weights=weights
+        _planar_field,
+        y0,
+        p,
+        settings,
+        _separation,
+        False,
+        weights=weights,
+        extrema=extrema,
     )
     tau_end, separated = _event_time(sol)
     y = jax.tree.map(lambda x: x[-1], sol.ys)
+    if extrema != (None, None):
+        peak_force, min_slip = sol.solver_state[1]
     q, q_dot, _, j_n, j_t, v_n, v_t, _, _, _ = p.forces(y)
     i_comp, i_rest, t_comp, t_rest = y.impulses * impulse_unit
     w_comp, w_rest = y.works * work_unit
     d_m = y.max_deflection * sc.length
     contact_time = tau_end * t_unit
     compression_time = y.loading_time * t_unit
-    max_force = (
-        y.peak_force * sc.force if bound.rate_dependent else bound.peak_force(d_m)
-    )
+    max_force = peak_force * sc.force if bound.rate_dependent else bound.peak_force(d_m)
     extras = {
         "tangential_velocity_contact_before": v_t0,
         "tangential_velocity_contact_after": v_t,
@@ -321,7 +299,7 @@ def solve_planar(scene, law, friction, settings):
     }
     if friction is not None:
         extras.update(
-            _slip_extras(y.min_slip, slip_sign * v_t / v0, v_t0, friction, settings)
+            _slip_extras(min_slip, slip_sign * v_t / v0, v_t0, friction, settings)
         )
     fields = result_fields(
         contact_time=contact_time,

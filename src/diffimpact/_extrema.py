@@ -1,0 +1,128 @@
+"""Running extrema of a solution, taken from the accepted steps.
+
+A diagnostic such as the peak contact force or the least slip of the contact
+point never feeds back into the motion.  Integrated as an ODE state it needs a
+steep switch ("at the running maximum"), its own error weight, and it stops an
+implicit solver's stage equations from converging.  Here it is not a state:
+`TrackExtrema` wraps the user's solver and, after each step, refines the
+extremum of a scalar function of the state inside the step on the solver's own
+dense interpolant (samples, then Newton on its time derivative), keeping the
+running maximum and minimum in the solver state.  diffrax keeps the solver
+state of accepted steps only, and returns the final one with
+``SaveAt(solver_state=True)``.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+
+import diffrax
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+
+# Interior samples per step, then Newton iterations on the interpolant's time
+# derivative from the best sample: the interpolant is accurate to the step's
+# tolerance, and Newton converges quadratically from within a quarter step.
+_SAMPLES = 4
+_NEWTON = 3
+
+
+def _refine(fn, lo, hi, sign):
+    """Extremum of ``sign * fn`` (maximum) on ``[lo, hi]``: the best of the
+    end points and ``_SAMPLES`` interior points, then Newton on ``fn'``."""
+    ts = lo + (hi - lo) * jnp.linspace(0.0, 1.0, _SAMPLES + 2, dtype=lo.dtype)
+    values = jax.vmap(fn)(ts) * sign
+    t = ts[jnp.argmax(values)]
+    d1 = jax.grad(fn)
+    d2 = jax.grad(d1)
+    for _ in range(_NEWTON):
+        curv = d2(t)
+        ok = curv * sign < 0  # a maximum of sign * fn: Newton heads for it
+        t_new = t - jnp.where(ok, d1(t) / jnp.where(ok, curv, 1.0), 0.0)
+        t = jnp.clip(t_new, lo, hi)
+    return jnp.maximum(jnp.max(values), sign * fn(t)) * sign
+
+
+class TrackExtrema(diffrax.AbstractWrappedSolver):
+    """``solver`` plus the running maximum of ``peak(t, y, args)`` and the
+    running minimum of ``least(t, y, args)`` (either None) over the accepted
+    steps, in ``sol.solver_state[1]`` as ``(maximum, minimum)``."""
+
+    solver: diffrax.AbstractSolver
+    peak: Callable | None = eqx.field(static=True, default=None)
+    least: Callable | None = eqx.field(static=True, default=None)
+    # An implicit solver's root finder, exposed so that `diffeqsolve` resolves
+    # its tolerances from the step-size controller's (as it does for an
+    # unwrapped implicit solver); `_inner` hands it back to the solver.
+    root_finder: object = None
+
+    def __init__(self, solver, peak=None, least=None):
+        self.solver = solver
+        self.peak = peak
+        self.least = least
+        self.root_finder = getattr(solver, "root_finder", None)
+
+    def _inner(self):
+        if self.root_finder is None:
+            return self.solver
+        return eqx.tree_at(lambda s: s.root_finder, self.solver, self.root_finder)
+
+    @property
+    def term_structure(self):
+        return self.solver.term_structure
+
+    @property
+    def interpolation_cls(self):  # pyright: ignore
+        return self.solver.interpolation_cls
+
+    @property
+    def term_compatible_contr_kwargs(self):
+        return self.solver.term_compatible_contr_kwargs
+
+    def order(self, terms):
+        return self.solver.order(terms)
+
+    def strong_order(self, terms):
+        return self.solver.strong_order(terms)
+
+    def error_order(self, terms):
+        return self.solver.error_order(terms)
+
+    def func(self, terms, t0, y0, args):
+        return self._inner().func(terms, t0, y0, args)
+
+    def _extrema(self, t0, y0, args):
+        out = []
+        for fn in (self.peak, self.least):
+            out.append(None if fn is None else fn(t0, y0, args))
+        return tuple(out)
+
+    def init(self, terms, t0, t1, y0, args):
+        inner = self._inner().init(terms, t0, t1, y0, args)
+        return inner, self._extrema(t0, y0, args)
+
+    def step(self, terms, t0, t1, y0, args, solver_state, made_jump):
+        inner, (top, bottom) = solver_state
+        y1, y_error, dense_info, inner, result = self._inner().step(
+            terms, t0, t1, y0, args, inner, made_jump
+        )
+        interp = self.solver.interpolation_cls(t0=t0, t1=t1, **dense_info)
+        lo, hi = jnp.asarray(t0), jnp.asarray(t1)
+        if self.peak is not None:
+            here = _refine(lambda t: self.peak(t, interp.evaluate(t), args), lo, hi, 1)
+            top = jnp.maximum(top, here)
+        if self.least is not None:
+            here = _refine(
+                lambda t: self.least(t, interp.evaluate(t), args), lo, hi, -1
+            )
+            bottom = jnp.minimum(bottom, here)
+        return y1, y_error, dense_info, (inner, (top, bottom)), result
+
+
+def track_extrema(solver, peak=None, least=None):
+    """``solver`` wrapped to track the extrema, or ``solver`` itself when there
+    is nothing to track."""
+    if peak is None and least is None:
+        return solver
+    return TrackExtrema(solver, peak, least)
