@@ -379,15 +379,13 @@ class PlanarProblem:
 
 def planar_problem(scene, law, friction, settings: di.SolverSettings) -> PlanarProblem:
     """The set-up of ``diffimpact._planar_solve.solve_planar`` (its own
-    ``planar_setup``), for a law without a running peak force."""
+    ``planar_setup``)."""
     args, state, weights, _ = planar_setup(scene, law, friction, settings)
-    if args.bound.rate_dependent:
-        raise NotImplementedError(
-            "the peak-force state is error-weighted, not left out"
-        )
     y0, unravel = ravel_pytree(state)
-    flat_weights = np.asarray(ravel_pytree(weights)[0])
-    unchecked = tuple(int(i) for i in np.nonzero(flat_weights == 0.0)[0])
+    unchecked = ()
+    if weights is not None:  # every state is error-controlled alike (None)
+        flat_weights = np.asarray(ravel_pytree(weights)[0])
+        unchecked = tuple(int(i) for i in np.nonzero(flat_weights == 0.0)[0])
     return PlanarProblem(args, state, y0, unravel, unchecked, settings.max_time)
 
 
