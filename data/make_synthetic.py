@@ -5,9 +5,9 @@
 Writes ``synthetic_sphere_on_incline_noise1pct.csv`` (1 % Gaussian noise on every
 output, with matching ``sigma_`` columns) and
 ``synthetic_sphere_on_incline_noiseless.csv`` (exact model outputs), from the
-ball-prism scene (data.md A's ball and prism, the Jackson-Green law) with the
-true parameters in TRUTH, over a grid of drop heights and incline angles.
-The seed is fixed, so the files are reproducible.
+ball-prism scene (the ball and prism of Alaci, Filote & Ciornei, the
+Jackson-Green law) with the true parameters in TRUTH, over a grid of drop
+heights and incline angles.  The seed is fixed, so the files are reproducible.
 """
 
 from __future__ import annotations
@@ -89,8 +89,9 @@ def main(argv=None):
             scene="sphere_on_incline",
             provenance=(
                 "SYNTHETIC data made by data/make_synthetic.py (not measurements).\n"
-                "Scene: sphere_on_incline with its defaults (data.md A ball and "
-                "prism), Jackson-Green law, Coulomb + viscous friction.\n"
+                "Scene: sphere_on_incline with its defaults (the ball and prism of "
+                "Alaci, Filote & Ciornei), Jackson-Green law, Coulomb + viscous "
+                "friction.\n"
                 f"True parameters: {truth} (mu_v in N s/m, yield_strength in Pa).\n"
                 + (
                     f"Noise: {noise:.0%} Gaussian, relative, on every output "

@@ -191,7 +191,8 @@ def critical_angles(
       inside the band: for a contact whose tangential motion decouples from the
       normal one (``J_t M^-1 J_n^T = 0``, the ball), the exact-hold law of
       `Friction` is full Coulomb down to ``|v_t| = eps`` and linear
-      below, ``dv_t/dP = -c v_t / eps`` per unit normal impulse, so where the
+      below, ``dv_t/dP = -mu v_t / (m_t eps)`` per unit normal impulse
+      (``m_t`` the tangential effective mass), so where the
       sharp law ends at zero slip the smooth one ends at ``exp(-1)`` widths.
       Default level: 0.368 (gravity and coupling leave an O(eps) bias).
     - with no tangential approach (``v_t0 = 0``, e.g. a bar dropped without

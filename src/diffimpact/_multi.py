@@ -24,7 +24,8 @@ loading force (IM-1 for ``AdamsImpact``, H-1 for ``Hertz``), zero for
 its maximum compression ``d_m`` per contact as state, with the smooth
 loading/unloading switch of the single-impact solver (docs/physics/contact.md);
 see `_history_rate` for how ``d_m`` is forgotten between impacts.
-Friction is F-1 with ``sgn -> tanh(v_t / (slip_width * speed))``.
+Friction is the slope-only law of `Friction` (``stick="slope"``: F-1, or F-2
+with ``mu_s``, with ``sgn -> tanh(v_t / (slip_width * speed))``).
 
 **Accumulated states** (so that the energy balance can be checked and impacts
 measured without events): the work of the applied forces
@@ -41,13 +42,14 @@ and ``W_n - V_c(d)`` (``V_c`` the stored elastic energy of the law,
 ``SaveAt(steps=True)``): an impact of contact ``k`` starts at the first step
 with ``d_k > 0`` (``> d_r`` for a hysteretic law) and ends at the first step
 after it without.  Start and end times are refined inside the bracketing step
-by the root of the cubic Hermite interpolant of ``d`` (values and rates ``d``,
-``d_dot`` at both steps), the peak force by the maximum of the Hermite cubic of
-``F_n`` (``F_n``, ``dF_n/dt`` by a JVP along the vector field) around the
-largest sampled force, and the impulse is the difference of the accumulated
-impulse between the two steps (exact: ``F_n = 0`` outside).  Every quantity is
-differentiable; the arrays have a fixed size ``max_impacts`` (JAX needs static
-shapes), padded with ``inf`` times and zeros, with the total ``count``.
+by the root of the quintic Hermite interpolant of ``d`` (values and first and
+second time derivatives at both steps, by JVPs along the vector field), the
+peak force by the maximum of the quintic Hermite interpolant of ``F_n`` around
+the largest sampled force (`diffimpact._hermite`), and the impulse is the
+difference of the accumulated impulse between the two steps (exact: ``F_n =
+0`` outside).  Every quantity is differentiable; the arrays have a fixed
+size ``max_impacts`` (JAX needs static shapes), padded with ``inf`` times and
+zeros, with the total ``count``.
 """
 
 from __future__ import annotations
@@ -362,7 +364,7 @@ def simulate_span(
             "simulate_span has only the slope-only friction law (a mechanism "
             "supplies no holding force for the exact hold): pass "
             "Friction(..., stick='slope'), whose stuck contact creeps at "
-            "eps atanh(F_h / (mu F_n)) (eps the slip width)"
+            "v_t = -eps atanh(F_h / (mu F_n)) (eps the slip width)"
         )
     if not isinstance(settings, SpanSettings):
         raise TypeError("`settings` must be a diffimpact.SpanSettings")

@@ -90,7 +90,8 @@ class Friction(AbstractValidated):
         ``F_t = c S(F_h / c - beta g(x)) - mu_v |v_t| tanh(x)``,  ``c = mu F_n``,
 
     ``S`` a smooth ``clip(., -1, 1)`` (corners rounded over 0.01), ``beta = 1 +
-    10 softplus(|F_h| / c - 1)`` and ``g(x) = x^3 / (x^2 + 0.01^2)``.  While
+    10 * 0.01 softplus((|F_h| / c - 1) / 0.01)`` (about ``1 + 10 max(0, |F_h| /
+    c - 1)``) and ``g(x) = x^3 / (x^2 + 0.01^2)``.  While
     ``|F_h| < c`` a contact at rest gets exactly ``F_h``: it is held without
     creep.  Slip left over when a sliding contact comes to rest decays like
     ``exp(-c beta t / (m_t eps))`` down to 0.01 widths, then like ``1 /
@@ -112,7 +113,7 @@ class Friction(AbstractValidated):
     **Slope only** (``stick="slope"``; every solver, and the only form
     `diffimpact.simulate_span` has, whose mechanisms supply no holding
     force): ``sgn`` becomes ``tanh(x)``, and stick is approximated by the steep
-    slope near ``v_t = 0``: a held contact creeps at ``eps atanh(F_h / c)``, an
+    slope near ``v_t = 0``: a held contact creeps at ``v_t = -eps atanh(F_h / c)``, an
     error of order ``eps`` (1.1e-4 .. 1.7e-4 of a held bar's rebound at the
     default width).  F-2 here has ``x_s = breakaway_slip`` (default 4):
 
