@@ -116,6 +116,37 @@ def test_bounds_by_sigmoid_keep_the_parameter_inside(tmp_path):
     assert 100e6 < r.values[0] < 350e6 and r.values[0] > 349e6
 
 
+def test_bounded_fit_starts_at_its_start_value(tmp_path):
+    """A bounded parameter's fit starts where it is asked to: started at the
+    truth, one Levenberg-Marquardt step stays there (a fit that started in the
+    middle of its bounds, 725 MPa here, would not: 0 residual at the start
+    makes the step 0)."""
+    exp = di.Experiment.default("normal_impact")  # its S_y is the truth here
+    truth = 400e6
+    p = _normal_file(tmp_path, exp, [0.3, 1.0])
+    r = di.fit(
+        p,
+        exp,
+        free="yield_strength",
+        start={"yield_strength": truth},
+        bounds={"yield_strength": (50e6, 1.4e9)},
+        max_steps=1,
+        progress=False,
+    )
+    assert r.values[0] == pytest.approx(truth, rel=1e-9)
+
+
+def test_a_column_set_parameter_cannot_be_fitted(tmp_path):
+    """A scene field that a column sets row by row would be overwritten in
+    every row: fitting it is refused, naming the column."""
+    p = tmp_path / "m.csv"
+    p.write_text(
+        "scene,impact_velocity_m_s,radius_mm,cor_normal\nnormal_impact,1.0,5,0.8\n"
+    )
+    with pytest.raises(ValueError, match="'radius' column"):
+        di.fit(p, free=["radius"], progress=False)
+
+
 @pytest.mark.parametrize(
     "kwargs, match",
     [

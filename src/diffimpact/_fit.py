@@ -327,6 +327,19 @@ def fit(
         if extra:
             raise ValueError(f"`{what}` names parameters that are not free: {extra}")
     paths = tuple(resolve_parameter(experiment, n) for n in free)
+    # A scene field that a column of the file sets row by row cannot be
+    # fitted: every row would overwrite it, and the fit would change nothing.
+    spec = scene_spec(experiment.scene)
+    by_column = {"scene." + spec.inputs[q]: q for q in data.inputs if q in spec.inputs}
+    clash = [
+        (n, by_column[p]) for n, p in zip(free, paths, strict=True) if p in by_column
+    ]
+    if clash:
+        name, column = clash[0]
+        raise ValueError(
+            f"{name!r} cannot be fitted: the file's {column!r} column sets it row "
+            f"by row ({data.path}); fit another parameter, or drop that column"
+        )
     experiment = with_parameters(experiment, paths)
     x0 = [
         float(start.get(n, get_path(experiment, p)))
@@ -350,7 +363,9 @@ def fit(
         quantities=quantities,
         transforms=transforms,
     )
-    u0 = jnp.zeros(len(free))
+    # The unconstrained point of the start values (0 for the log and affine
+    # maps, not for bounded ones: a sigmoid's 0 is the middle of its bounds).
+    u0 = jnp.asarray([t.inverse(t.start) for t in transforms], dtype=float)
     # Least squares needs the Jacobian of many residuals w.r.t. a few
     # parameters: forward mode (one JVP per parameter) is the cheap way, and
     # diffrax differentiates a solve in forward mode only with ForwardMode.
