@@ -522,3 +522,16 @@ def test_shapes_and_types_are_named():
             TypeError, match=rf"`{field}` must be a diffimpact.Material"
         ):
             make()
+
+
+@pytest.mark.parametrize("method", ["quadrature", "smooth"])
+def test_failure_known_at_compile_time_still_raises_under_jit(method):
+    """A scene closed over by ``jax.jit`` is a constant: a failure it causes is
+    known when XLA compiles, and the NaN mask of the outputs folds to a
+    constant.  The check must survive that (it once did not: the program
+    returned NaN without a word)."""
+    soft = di.Material(1e6, 0.3)
+    scene = di.scenes.NormalImpact(4.11e-3, 5e-3, soft, soft, 10.0)  # too deep
+    program = jax.jit(lambda: di.simulate(scene, di.Hertz(), method).max_deflection)
+    with pytest.raises(Exception, match="outside the contact model"):
+        jax.block_until_ready(program())

@@ -117,15 +117,19 @@ def finish(tree, result, throw: bool):
     """NaN the floating-point leaves of ``tree`` where ``result`` failed; with
     ``throw``, raise (traced: ``equinox`` runtime error) instead."""
     failed = result != RESULTS.successful
-    if throw:
-        tree = result.error_if(tree, failed)
 
     def nan(x):
         if eqx.is_inexact_array(x):
             return jnp.where(failed, jnp.nan, x)
         return x
 
-    return jax.tree.map(nan, tree)
+    tree = jax.tree.map(nan, tree)
+    if throw:
+        # After the NaN mask, so that the outputs depend on the check: with a
+        # failure known at compile time (a scene closed over by `jax.jit`),
+        # the mask folds to a constant and a check before it would be dropped.
+        tree = result.error_if(tree, failed)
+    return tree
 
 
 def raise_if_failed(result, extra: str = "") -> None:
