@@ -348,7 +348,7 @@ def main(argv=None) -> int:
     p.add_argument("--velocity", type=float, default=1.0, help="impact speed [m/s]")
     p.set_defaults(func=demo)
 
-    s = sub.add_parser("simulate", help="one normal impact of a sphere on a flat")
+    s = sub.add_parser("simulate", help="one impact of a built-in scene, printed")
     s.add_argument(
         "--scene",
         choices=("normal_impact", "sphere_on_incline", "rotating_link", "free_bar"),

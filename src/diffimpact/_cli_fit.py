@@ -15,6 +15,8 @@ from __future__ import annotations
 import json
 import os
 
+from ._cli_files import open_new
+
 _OUTPUT_FILES = ("fit.json", "residuals.csv", "fit.png", "loop.png")
 _LAWS = {"jackson-green": "JacksonGreen", "hertz": "Hertz"}
 
@@ -23,9 +25,9 @@ def register(sub) -> None:
     p = sub.add_parser(
         "fit",
         help="fit parameters to an experiment CSV",
-        description=__doc__.split("\n\n")[0],
+        description=__doc__.split("\n\n")[0].replace("``", ""),
     )
-    p.add_argument("data", help="experiment CSV (schema: README, 'CSV format')")
+    p.add_argument("data", help="experiment CSV (schema: docs/data-formats.md)")
     p.add_argument(
         "--free",
         required=True,
@@ -34,7 +36,12 @@ def register(sub) -> None:
     p.add_argument(
         "--scene", default=None, help="scene name if the file has no 'scene' column"
     )
-    p.add_argument("--law", choices=sorted(_LAWS), default="jackson-green")
+    p.add_argument(
+        "--law",
+        choices=sorted(_LAWS),
+        default="jackson-green",
+        help="normal contact law (default jackson-green)",
+    )
     p.add_argument(
         "--compliant",
         action="store_true",
@@ -48,7 +55,11 @@ def register(sub) -> None:
         help="fix a parameter to a value (SI), e.g. youngs_modulus=210e9",
     )
     p.add_argument(
-        "--start", action="append", default=[], metavar="NAME=VALUE", help="start"
+        "--start",
+        action="append",
+        default=[],
+        metavar="NAME=VALUE",
+        help="start value of a free parameter (SI; default: the scene's own)",
     )
     p.add_argument(
         "--bounds",
@@ -61,8 +72,11 @@ def register(sub) -> None:
         "--solver",
         choices=("levenberg-marquardt", "gauss-newton", "adam", "lbfgs"),
         default="levenberg-marquardt",
+        help="optimiser (default levenberg-marquardt)",
     )
-    p.add_argument("--max-steps", type=int, default=100)
+    p.add_argument(
+        "--max-steps", type=int, default=100, help="most optimiser steps (default 100)"
+    )
     p.add_argument("--out", default=None, help="output folder (default fit-<data>)")
     p.add_argument("--force", action="store_true", help="overwrite outputs in --out")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
@@ -87,11 +101,6 @@ def _number(text, what):
 
 
 def run(args) -> int:
-    import equinox as eqx
-
-    import diffimpact as di
-    from diffimpact._observables import set_parameters
-
     out = args.out or "fit-" + os.path.splitext(os.path.basename(args.data))[0]
     if os.path.exists(out) and not os.path.isdir(out):
         raise ValueError(
@@ -106,10 +115,26 @@ def run(args) -> int:
             f"{out}: would overwrite {', '.join(existing)}; pass --force or choose "
             "another --out"
         )
+    created = not os.path.isdir(out)
     try:  # the folder exists and can be written, before minutes of fitting
         os.makedirs(out, exist_ok=True)
     except OSError as err:
         raise ValueError(f"--out {out}: cannot be created ({err.strerror})") from None
+    try:
+        return _fit_and_write(args, out)
+    except BaseException:
+        # a failed fit leaves no empty folder of its own making behind
+        if created and os.path.isdir(out) and not os.listdir(out):
+            os.rmdir(out)
+        raise
+
+
+def _fit_and_write(args, out) -> int:
+    import equinox as eqx
+
+    import diffimpact as di
+    from diffimpact._observables import set_parameters
+
     data = di.load_experiments(args.data)
     scene = args.scene or data.scene
     if scene is None:
@@ -160,25 +185,24 @@ def run(args) -> int:
         progress=not args.no_progress,
     )
     print(result.summary())
-    os.makedirs(out, exist_ok=True)
-    with open(os.path.join(out, "fit.json"), "w", encoding="utf-8") as fh:
+    with open_new(os.path.join(out, "fit.json"), args.force) as fh:
         json.dump(
             {"data": os.path.abspath(args.data), "scene": scene, **result.to_dict()},
             fh,
             indent=2,
             allow_nan=False,  # strict JSON: to_dict writes null for inf
         )
-    write_residuals(result, os.path.join(out, "residuals.csv"))
-    plot_fit(result, os.path.join(out, "fit.png"))
-    note = plot_loop(result, os.path.join(out, "loop.png"))
+    write_residuals(result, os.path.join(out, "residuals.csv"), args.force)
+    plot_fit(result, os.path.join(out, "fit.png"), args.force)
+    note = plot_loop(result, os.path.join(out, "loop.png"), args.force)
     print(f"wrote {out}/: {', '.join(_OUTPUT_FILES)}" + (f" ({note})" if note else ""))
     return 0
 
 
-def write_residuals(result, path) -> None:
+def write_residuals(result, path, force=False) -> None:
     import csv
 
-    with open(path, "w", newline="", encoding="utf-8") as fh:
+    with open_new(path, force) as fh:
         w = csv.writer(fh)
         w.writerow(
             ["line", *result.inputs, "quantity", "measured_si", "predicted_si"]
@@ -212,7 +236,7 @@ def _unit(quantity: str) -> str:
     return "" if dim in ("", "dimensionless") else f" [{_SI[dim]}]"
 
 
-def plot_fit(result, path) -> None:
+def plot_fit(result, path, force=False) -> None:
     import matplotlib
 
     matplotlib.use("Agg")
@@ -258,11 +282,12 @@ def plot_fit(result, path) -> None:
         fontsize=9,
     )
     fig.tight_layout()
-    fig.savefig(path, dpi=110)
+    with open_new(path, force, binary=True) as fh:
+        fig.savefig(fh, format="png", dpi=110)
     plt.close(fig)
 
 
-def plot_loop(result, path) -> str:
+def plot_loop(result, path, force=False) -> str:
     """Normal force against interference for the median row (the normal problem
     of the scene, which is exact for scenes whose normal motion decouples)."""
     import matplotlib
@@ -295,6 +320,7 @@ def plot_loop(result, path) -> str:
     )
     ax.title.set_fontsize(8)
     fig.tight_layout()
-    fig.savefig(path, dpi=110)
+    with open_new(path, force, binary=True) as fh:
+        fig.savefig(fh, format="png", dpi=110)
     plt.close(fig)
     return note

@@ -38,6 +38,8 @@ import sys
 import time
 from pathlib import Path
 
+from ._cli_files import open_new
+
 # (input name, command-line flag, CSV unit suffix, help text).  The order is
 # the order of the grid axes (the first varies slowest) and of the CSV columns.
 _INPUTS = (
@@ -225,18 +227,6 @@ def _build_inputs(args):
 # --------------------------------------------------------------------------
 
 
-def _open_new(path: Path, force: bool, binary: bool = False):
-    """Open for writing; without ``force`` refuse (atomically, mode "x") to
-    replace an existing file."""
-    mode = ("w" if force else "x") + ("b" if binary else "")
-    try:
-        return open(path, mode, **({} if binary else {"newline": ""}))
-    except FileExistsError:
-        raise ValueError(
-            f"{path} already exists; pass --force to overwrite it"
-        ) from None
-
-
 def _write_csv(path: Path, inputs, outputs, force: bool):
     import io
 
@@ -251,7 +241,7 @@ def _write_csv(path: Path, inputs, outputs, force: bool):
     )
     codes = outputs["result"]
     labels = {int(c): result_name(c) for c in np.unique(codes)}
-    with _open_new(path, force) as f:
+    with open_new(path, force) as f:
         f.write(",".join([*header, "result"]) + "\n")
         # 12 significant digits: the quadrature is exact to about 1e-11.
         # Written in blocks, so the formatted text never holds the whole table;
@@ -327,7 +317,7 @@ def _plot(path: Path, inputs, outputs, swept, log, shape, law: str, force: bool)
                 ax.set_xscale("log")
             ax.grid(True, which="both", alpha=0.3)
     fig.suptitle(f"diffimpact sweep: {n_rows:,} normal impacts, {law} contact")
-    with _open_new(path, force, binary=True) as f:
+    with open_new(path, force, binary=True) as f:
         fig.savefig(f, format="png", dpi=120)
     plt.close(fig)
 
