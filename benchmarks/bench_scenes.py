@@ -644,7 +644,7 @@ def fmt_times(times: Sequence[float], base: Sequence[float] | None = None) -> li
 
 def normal_state_size(problem: NormalProblem, law) -> int:
     """Size of the smooth 1-DOF state (``_normal_solve._y0``)."""
-    return int(_y0(_bind(law, problem), jnp.float64, smooth=True).shape[0])
+    return len(jax.tree.leaves(_y0(_bind(law, problem), jnp.float64, smooth=True)))
 
 
 def bench_decoupled(config: Config) -> list[list[str]]:
