@@ -134,6 +134,9 @@ def test_bounded_fit_starts_at_its_start_value(tmp_path):
         progress=False,
     )
     assert r.values[0] == pytest.approx(truth, rel=1e-9)
+    # the fitted experiment carries the user's settings, not the fit's
+    # forward-mode adjoint (jax.grad through it works)
+    assert type(r.experiment.settings.adjoint) is type(exp.settings.adjoint)
 
 
 def test_a_column_set_parameter_cannot_be_fitted(tmp_path):

@@ -403,6 +403,7 @@ def fit(
         time.perf_counter() - t0,
         np.asarray(x0),
         absolute,
+        problem.experiment.settings,  # the user's (the fit used forward mode)
     )
 
 
@@ -582,7 +583,9 @@ def _minimise(problem, u0, name, max_steps, rtol, atol, learning_rate, bar):
     return u, steps, converged
 
 
-def _result(problem, data, u, steps, converged, solver, seconds, x0, absolute):
+def _result(
+    problem, data, u, steps, converged, solver, seconds, x0, absolute, user_settings
+):
     names = problem.names
     x = np.array([float(v) for v in problem.parameters(u)])
     pred = np.asarray(_predictions(problem, u)[0])
@@ -690,7 +693,9 @@ def _result(problem, data, u, steps, converged, solver, seconds, x0, absolute):
         seconds=seconds,
         singular_values=s,
         warnings=tuple(notes),
-        experiment=problem.with_parameters(u),
+        experiment=dataclasses.replace(
+            problem.with_parameters(u), settings=user_settings
+        ),
         sigma_measured=tuple(q in data.sigmas for q in problem.quantities),
         lines=data.lines,
     )
