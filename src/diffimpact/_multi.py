@@ -104,52 +104,43 @@ def _history(p: _Span, taus, ys, valid, y0, e0):
         d, j_n, j_t, v_n, v_t, f_n, f_t = p.contact_forces(q, q_dot, d_m)
         kinetic = p.kinetic(q, q_dot)
         potential = p.scene.potential(q)
-        w_a = y.applied_work * p.energy
-        impulse = y.impulses * p.impulse_unit
-        w_n = jnp.sum(y.normal_work) * p.energy
-        w_f = jnp.sum(y.friction_work) * p.energy
-        out = p.scene.report(t, q, q_dot, f_n, f_t)
         v_c_each = p.elastic_energy(d)
+        # `SpanHistory`'s fields, and two per-contact extras for the impacts
         return dict(
             q=q,
             q_dot=q_dot,
-            d=d,
-            v_n=v_n,
-            f_n=f_n,
-            f_t=f_t,
-            kinetic=kinetic,
-            potential=potential,
-            w_a=w_a,
-            w_n=w_n,
-            w_f=w_f,
-            v_c=jnp.sum(v_c_each),
+            penetration=d,
+            penetration_rate=v_n,
+            normal_force=f_n,
+            friction_force=f_t,
+            kinetic_energy=kinetic,
+            potential_energy=potential,
+            applied_work=y.applied_work * p.energy,
+            contact_work=jnp.sum(y.normal_work) * p.energy,
+            friction_work=jnp.sum(y.friction_work) * p.energy,
+            contact_energy=jnp.sum(v_c_each),
+            impulse=y.impulses * p.impulse_unit,
+            outputs=p.scene.report(t, q, q_dot, f_n, f_t),
             v_c_each=v_c_each,
-            impulse=impulse,
-            outputs=out,
             threshold=p.threshold(d_m) if p.hysteretic else jnp.zeros_like(d),
         )
 
     taus_safe = jnp.where(valid, taus, taus[0])
     h = jax.vmap(one)(taus_safe, ys)
-    error = h["kinetic"] + h["potential"] - e0 - h["w_a"] + h["w_n"] + h["w_f"]
+    error = (
+        h["kinetic_energy"]
+        + h["potential_energy"]
+        - e0
+        - h["applied_work"]
+        + h["contact_work"]
+        + h["friction_work"]
+    )
+    fields = {k: v for k, v in h.items() if k not in ("v_c_each", "threshold")}
     hist = SpanHistory(
         time=jnp.where(valid, taus_safe * p.time, jnp.inf),
         valid=valid,
-        q=h["q"],
-        q_dot=h["q_dot"],
-        penetration=h["d"],
-        penetration_rate=h["v_n"],
-        normal_force=h["f_n"],
-        friction_force=h["f_t"],
-        kinetic_energy=h["kinetic"],
-        potential_energy=h["potential"],
-        applied_work=h["w_a"],
-        contact_work=h["w_n"],
-        friction_work=h["w_f"],
-        contact_energy=h["v_c"],
-        impulse=h["impulse"],
         energy_error=jnp.where(valid, error, 0.0),
-        outputs=h["outputs"],
+        **fields,
     )
     return hist, h, ys
 
@@ -231,7 +222,7 @@ def _simulate_span(scene, law, t_span, friction, settings, n_save, throw):
         return [tuple(x[:, j] for x in out) for j in cols] + [qdd]
 
     ts_safe = jnp.where(valid, steps.time, steps.time[0])
-    active = valid[:, None] & (h["d"] > h["threshold"])
+    active = valid[:, None] & (h["penetration"] > h["threshold"])
 
     def one_contact(k, active, d, f, imp, wn, v_c):
         return _impacts_of_contact(
@@ -253,8 +244,8 @@ def _simulate_span(scene, law, t_span, friction, settings, n_save, throw):
     per = jax.vmap(one_contact, in_axes=(0, 1, 1, 1, 1, 1, 1))(
         jnp.arange(nc),
         active,
-        h["d"],
-        h["f_n"],
+        h["penetration"],
+        h["normal_force"],
         ys.impulses * p.impulse_unit,
         ys.normal_work * p.energy,
         h["v_c_each"],
