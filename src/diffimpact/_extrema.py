@@ -27,6 +27,8 @@ import jax.numpy as jnp
 _SAMPLES = 4
 _NEWTON = 3
 
+_MIRRORED = ("root_finder", "scan_kind")
+
 
 def _refine(fn, lo, hi, sign):
     """Extremum of ``sign * fn`` (maximum) on ``[lo, hi]``: the best of the
@@ -52,21 +54,34 @@ class TrackExtrema(diffrax.AbstractWrappedSolver):
     solver: diffrax.AbstractSolver
     peak: Callable | None = eqx.field(static=True, default=None)
     least: Callable | None = eqx.field(static=True, default=None)
-    # An implicit solver's root finder, exposed so that `diffeqsolve` resolves
-    # its tolerances from the step-size controller's (as it does for an
-    # unwrapped implicit solver); `_inner` hands it back to the solver.
+    # Fields that diffrax rewrites on the solver it is given (isinstance checks
+    # see through the wrapper): an implicit solver's root finder gets the
+    # step-size controller's tolerances, a Runge-Kutta solver's `scan_kind` is
+    # set for forward-mode differentiation.  Mirrored here; `_inner` hands them
+    # back to the wrapped solver.
     root_finder: object = None
+    scan_kind: object = None
 
     def __init__(self, solver, peak=None, least=None):
         self.solver = solver
         self.peak = peak
         self.least = least
         self.root_finder = getattr(solver, "root_finder", None)
+        self.scan_kind = getattr(solver, "scan_kind", None)
 
     def _inner(self):
-        if self.root_finder is None:
-            return self.solver
-        return eqx.tree_at(lambda s: s.root_finder, self.solver, self.root_finder)
+        solver = self.solver
+        for name in _MIRRORED:
+            if hasattr(solver, name) and getattr(self, name) is not getattr(
+                solver, name
+            ):
+                solver = eqx.tree_at(
+                    lambda s, n=name: getattr(s, n),
+                    solver,
+                    getattr(self, name),
+                    is_leaf=lambda x: x is None,
+                )
+        return solver
 
     @property
     def term_structure(self):
