@@ -138,10 +138,10 @@ class _PressedBall(di.scenes.AbstractMechanism):
 
 
 def test_impact_under_way_at_t0_dissipates_nothing_under_hertz():
-    """An impact already under way at t0 (found by review): its dissipated
-    work counts the elastic energy stored at t0, so a conservative law gives
-    0: measured 3e-15 J, 2e-7 of the energy stored at t0 and 6e-13 of the
-    kinetic energy (it was minus the stored energy, 1.4e-8 J)."""
+    """An impact already under way at t0: its dissipated work counts the
+    elastic energy stored at t0, so a conservative law gives 0: measured
+    3e-15 J, 2e-7 of the energy stored at t0 and 6e-13 of the kinetic energy
+    (regression guard: leaving the stored energy out gives -1.4e-8 J)."""
     r = simulate_span(
         _PressedBall(), di.Hertz(), (0.0, 3e-3), settings=SpanSettings(max_steps=4096)
     )
@@ -557,8 +557,8 @@ def test_wild_trial_state_gives_no_nan_gradient():
     """A rejected trial stage can hold NaN or overflowed states (the
     Runge-Kutta arithmetic overflows on a wild trial step).  Its cotangent is
     zero, so the vector field's VJP there must be zero, not 0 * NaN = NaN
-    (found by review: ``jax.grad`` of a 0.2 s slider-crank span was NaN
-    while every value was right).  Checked directly on the field, for both
+    (regression guard: otherwise ``jax.grad`` of a 0.2 s slider-crank span is
+    NaN while every value is right).  Checked directly on the field, for both
     scenes (the bar with a hysteretic law); the field at the start is finite."""
     from diffimpact._span_field import _setup
 
@@ -599,8 +599,9 @@ def test_wild_trial_state_gives_no_nan_gradient():
 def test_jackson_green_unloading_gradient_at_a_vanishing_dent():
     """Between impacts a span solve carries a vanishing maximum compression
     (the solve visited d_m = 7.6e-201 m before the bar's first contact); the
-    JG unloading force there is 0 with a finite derivative (found by review:
-    ``-num/den^2`` overflowed, and every JG gradient of the span was NaN)."""
+    JG unloading force there is 0 with a finite derivative (regression
+    guard: ``-num/den^2`` overflows there, making every JG gradient of the
+    span NaN)."""
     bound = di.JacksonGreen().bind(bar().contact(), 1.0)
     for d_m in (7.6e-201, 1e-300, 0.0, 1e-30):
         f, g = jax.value_and_grad(

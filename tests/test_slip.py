@@ -200,9 +200,9 @@ def test_ball_matches_sharp_stickslip(phi_deg, mu, regime, bound):
 def test_bar_without_tangential_approach(theta_deg, mu_k, mu_s, regime, bound):
     """FreeBar dropped without spin: v_t0 = 0, no NaN anywhere, the slip
     ratio is taken along the direction the normal force drives the tip, and
-    the result follows the sharp reference to the issue's 1e-4 and far below
-    (exact-hold law; the slope-only law of earlier versions was 1.2e-4 off
-    sliding and 1.7e-4 held by mu_s, creeping at ~1.5 slip widths)."""
+    the result follows the sharp reference to 1e-4 and far below (exact-hold
+    law; the slope-only law, ``stick="slope"``, is 1.2e-4 off sliding and
+    1.7e-4 held by mu_s, creeping at ~1.5 slip widths)."""
     theta = math.radians(theta_deg)
     friction = di.Friction(mu_k, mu_s=mu_s)
     r = di.simulate(bar(theta), FAST_LAW, friction=friction, settings=SETTINGS)
