@@ -3,14 +3,14 @@
 For every planar scene with friction, under ``JacksonGreen()`` and
 ``Friction(mu)``:
 
-- sphere on an incline (data.md A: 19 mm bearing ball, 7850 kg/m^3, E 208 GPa,
+- sphere on an incline (Alaci et al.: 19 mm bearing ball, 7850 kg/m^3, E 208 GPa,
   nu 0.3, on a prism E 205 GPa, nu 0.29, S_y 400 MPa, dropped 0.29 m), at
   45 deg with mu = 0.1 (slides throughout) and at 26 deg with mu = 0.3 (ends
   rolling: a stiff stick phase);
-- rotating link (data.md E: 0.2 m steel rod, 10 mm diameter, hemispherical tip,
+- rotating link (its paper: 0.2 m steel rod, 10 mm diameter, hemispherical tip,
   released horizontal, impact angle 30 deg, mu = 0.2; steel E 210 GPa, nu 0.3,
   S_y 300 MPa, link and flat alike);
-- free bar (data.md B, xi = 1/8: 0.04718 kg, E 200.83 GPa, nu 0.3,
+- free bar (Wang & Fu, xi = 1/8: 0.04718 kg, E 200.83 GPa, nu 0.3,
   S_y 230.63 MPa, on a flat E 205 GPa, nu 0.29, S_y 355 MPa, dropped 0.3 m at
   45 deg, mu = 0.2);
 
@@ -106,17 +106,17 @@ DEFAULT = ("Dopri8", 1e-11)  # SolverSettings() defaults (rtol, atol = rtol / 10
 SCIPY_METHODS = ("DOP853", "RK45", "Radau", "LSODA")
 WITH_JACOBIAN = ("Radau", "LSODA")
 
-# data.md A: bearing ball on a prism.
+# Alaci et al.: bearing ball on a prism.
 BALL = di.Material(208e9, 0.3)
 PRISM = di.Material(205e9, 0.29, 400e6)
 BALL_RADIUS = 9.5e-3  # m
 BALL_MASS = 4.0 / 3.0 * math.pi * BALL_RADIUS**3 * 7850.0  # kg
 DROP_HEIGHT = 0.29  # m
-# data.md E: steel link on a flat of the same steel.
+# the rotating-link paper: steel link on a flat of the same steel.
 STEEL = di.Material(210e9, 0.3, 300e6, 7850.0)
 LINK_LENGTH, LINK_DIAMETER = 0.2, 0.01  # m
 LINK_MASS = 7850.0 * math.pi * (0.5 * LINK_DIAMETER) ** 2 * LINK_LENGTH  # kg
-# data.md B: the xi = 1/8 Babbitt/steel bar on an AISI 1045 flat.
+# Wang & Fu: the xi = 1/8 Babbitt/steel bar on an AISI 1045 flat.
 BAR = di.Material(200.83e9, 0.3, 230.63e6)
 PLATE = di.Material(205e9, 0.29, 355e6)
 BAR_MASS, BAR_HEIGHT = 0.04718, 0.3  # kg, m
@@ -179,7 +179,7 @@ def make_cases() -> list[Case]:
 
 
 def sphere_on_incline(angle_deg: float) -> di.scenes.SphereOnIncline:
-    """The data.md A ball dropped 0.29 m onto the prism tilted ``angle_deg``."""
+    """The Alaci et al. ball dropped 0.29 m onto the prism tilted ``angle_deg``."""
     return di.scenes.SphereOnIncline(
         BALL_MASS, BALL_RADIUS, BALL, PRISM, math.radians(angle_deg), DROP_HEIGHT
     )
@@ -678,7 +678,7 @@ def bench_decoupled(config: Config) -> list[list[str]]:
 
 
 def bench_normal_paths(config: Config) -> list[list[str]]:
-    """(b) Hertz vs Jackson-Green and (c) quadrature vs smooth, on the data.md A
+    """(b) Hertz vs Jackson-Green and (c) quadrature vs smooth, on the Alaci et al.
     ball hitting the prism head-on at the drop speed sqrt(2 g h)."""
     scene = di.scenes.NormalImpact(
         BALL_MASS, BALL_RADIUS, BALL, PRISM, math.sqrt(2 * 9.81 * DROP_HEIGHT)
@@ -1151,7 +1151,7 @@ def main(argv: Sequence[str] | None = None) -> None:
     print(markdown_table(headers, decoupled))
     print()
     print(
-        "(b, c) Normal impact of the data.md A ball on the prism at "
+        "(b, c) Normal impact of the Alaci et al. ball on the prism at "
         f"{math.sqrt(2 * 9.81 * DROP_HEIGHT):.3f} m/s, default settings"
     )
     print()

@@ -10,13 +10,13 @@ velocities (centre of mass) and the spin, with the solver steps and time.
 Cases (normal law: Hunt-Crossley calibrated to e = 0.7, i.e. a stiff contact
 with a known restitution):
 
-- ball on an incline (data.md A: 19 mm bearing ball, 0.29 m drop), Routh's
+- ball on an incline (Alaci et al.: 19 mm bearing ball, 0.29 m drop), Routh's
   critical angle ``tan(phi_c) = 3.5 mu (1 + e)``: sliding throughout
   (45 deg, mu 0.05), ending rolling (26 deg, mu 0.3), and either side of the
   critical angle (mu 0.1: phi_c = 30.75 deg; 31.0 deg slides, 30.5 deg
   rolls) and at it (30.75 deg: the sharp contact reaches rest as it
   separates, the worst case of the exact-hold law);
-- the xi = 1/8 bar of data.md B (0.3 m drop), which has no tangential approach
+- the xi = 1/8 bar of Wang & Fu (0.3 m drop), which has no tangential approach
   and sticks iff ``mu`` exceeds the force ratio it needs: stuck (60 deg,
   mu 0.4), sliding (45 deg, mu 0.3), and with static friction (F-2,
   mu_k 0.3, mu_s 0.4) stuck at 60 deg and sliding at 45 deg.  (At 45 deg the

@@ -3,7 +3,7 @@ planar ODE, and what it does for the ball-prism fit.
 
     python benchmarks/bench_sphere.py
 
-1. One impact of the data.md A ball on the prism (Hertz, so that the
+1. One impact of the Alaci et al. ball on the prism (Hertz, so that the
    event-based stick/slip reference of benchmarks/sharp_stickslip.py, scipy
    DOP853 at rtol 1e-13, integrates the same force), sliding (45 deg, mu 0.05)
    and stuck then re-slipping (26 deg, mu 0.3): jitted wall time of the closed

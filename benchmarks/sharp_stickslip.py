@@ -18,10 +18,10 @@ with scipy's ``solve_ivp`` (DOP853) phase by phase, with the exact Coulomb law
 
 Everything but the friction (kinematics, masses, the normal law
 ``F_n = K d^n max(1 + D d_dot, 0)``, gravity) is written out again here from
-physics.md, not taken from diffimpact.  Units: the state is scaled like the
+docs/physics, not taken from diffimpact.  Units: the state is scaled like the
 smooth solve's (lengths ``d_ref``, times ``d_ref / v_n0``), so one rtol fits.
 
-Models: :func:`sphere_on_incline` (data.md A) and :func:`free_bar` (data.md B).
+Models: :func:`sphere_on_incline` (Alaci et al.) and :func:`free_bar` (Wang & Fu).
 """
 
 from __future__ import annotations
@@ -58,7 +58,7 @@ def hertz_stiffness(e1, nu1, e2, nu2, radius):
 
 
 def sphere_on_incline(mass, radius, angle, height, g=9.81):
-    """Ball dropped from ``height`` onto a plane tilted ``angle`` (data.md A):
+    """Ball dropped from ``height`` onto a plane tilted ``angle`` (Alaci et al.):
     ``q = (n, t, theta)``, ``d = n``, ``v_t = t_dot + r theta_dot``."""
     v = math.sqrt(2.0 * g * height)
     inertia = 0.4 * mass * radius**2
@@ -88,7 +88,7 @@ def sphere_on_incline(mass, radius, angle, height, g=9.81):
 
 def free_bar(mass, angle, height, length=0.08, diameter=0.01, g=9.81):
     """Rod falling without spin onto a flat, hemispherical tip of radius
-    ``R_b = D/2`` (data.md B): ``q = (x, y - y0, theta - theta0)``,
+    ``R_b = D/2`` (Wang & Fu): ``q = (x, y - y0, theta - theta0)``,
     ``d = R_b + l sin(theta) - y`` with ``l = L/2 - R_b``."""
     r_b = 0.5 * diameter
     arm = 0.5 * length - r_b

@@ -37,7 +37,7 @@ RADIUS = 5e-3
 MASS = 4.0 / 3.0 * math.pi * RADIUS**3 * 7850.0
 
 
-# The ball-prism ball of data.md A (19 mm bearing ball dropped 0.29 m on a
+# The ball-prism ball of Alaci et al. (19 mm bearing ball dropped 0.29 m on a
 # hard prism), the ball of the sharp stick/slip reference's tests.
 BALL = di.Material(208e9, 0.3, 2e9)
 PRISM = di.Material(205e9, 0.29, 2e9)

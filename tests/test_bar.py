@@ -1,4 +1,4 @@
-"""Free rigid bar dropped onto a flat (data.md B, physics.md sections 3, 6).
+"""Free rigid bar dropped onto a flat (Wang & Fu, docs/physics).
 
 The references are computed here, independently of the scene: the contact-point
 velocities from the bar's geometry written out in world coordinates, the
@@ -16,7 +16,7 @@ from conftest import assert_grad_matches_fd, rel
 
 import diffimpact as di
 
-# data.md B: the xi = 1/8 Babbitt/steel bar on an AISI 1045 flat.
+# Wang & Fu: the xi = 1/8 Babbitt/steel bar on an AISI 1045 flat.
 BAR = di.Material(200.83e9, 0.3, 230.63e6)
 PLATE = di.Material(205e9, 0.29, 355e6)
 MASS = 0.04718

@@ -1,4 +1,4 @@
-"""Two bodies colliding along their common normal (data.md C) and the exact
+"""Two bodies colliding along their common normal (the ADAMS study) and the exact
 damping calibration of the dissipative laws."""
 
 import jax
@@ -18,7 +18,7 @@ def scene(v1=V1, v2=V2):
 
 
 def exact(e):
-    """physics.md section 6: w1, w2 for restitution e."""
+    """docs/physics/scenes.md: w1, w2 for restitution e."""
     p = M1 * V1 + M2 * V2
     return (p - M2 * e * (V1 - V2)) / (M1 + M2), (p + M1 * e * (V1 - V2)) / (M1 + M2)
 

@@ -1,5 +1,5 @@
 """Tangential compliance (Mindlin spring in series with Coulomb slip):
-``Friction(compliant=True)`` on the ball-prism scene of data.md A."""
+``Friction(compliant=True)`` on the ball-prism scene of Alaci et al.."""
 
 import math
 

@@ -193,7 +193,7 @@ def test_scene_and_columns_must_agree(tmp_path):
 
 
 def routh_best_fit(phi, e_n, e_t):
-    """Routh's rigid-body theory (physics.md section 6) at its own best (mu, e),
+    """Routh's rigid-body theory (docs/physics/scenes.md) at its own best (mu, e),
     by a fine grid search (the model is non-smooth at the slide/roll switch).
     The ball arrives without spin, so e_t is the centre's ratio as measured."""
     mu = np.linspace(0.0, 0.6, 6001)[:, None]
@@ -212,7 +212,7 @@ def routh_best_fit(phi, e_n, e_t):
 @pytest.mark.slow
 def test_ball_prism_real_data():
     """Yield strength of the prism and mu from the three measured impacts
-    (data.md A), with the contact's Mindlin tangential compliance: physically
+    (Alaci et al.), with the contact's Mindlin tangential compliance: physically
     plausible, and the tangential COR explained better than Routh's theory does
     at its own best mu and e (README, "Real data")."""
     exp = di.Experiment.default("sphere_on_incline")

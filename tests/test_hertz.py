@@ -1,4 +1,4 @@
-"""Hertz impact against the closed forms of physics.md (H-1)."""
+"""Hertz impact against the closed forms of (H-1)."""
 
 import math
 

@@ -15,7 +15,7 @@ from diffimpact import _normal_solve
 
 BALL = di.Material(208e9, 0.3, 2e9)
 PRISM = di.Material(205e9, 0.29, 2e9)
-R = 9.5e-3  # data.md A: 19 mm bearing ball
+R = 9.5e-3  # Alaci et al.: 19 mm bearing ball
 M = 4.0 / 3.0 * math.pi * R**3 * 7850.0
 E = 0.7
 LAW = di.HuntCrossley(cor=E, calibrated=True)
@@ -29,7 +29,7 @@ def scene(phi_deg, height=0.29):
 
 
 def routh(phi, mu, v):
-    """Routh's percussion-plane results (physics.md section 6)."""
+    """Routh's percussion-plane results (docs/physics/scenes.md)."""
     if mu <= 2.0 / 7.0 * math.tan(phi) / (1.0 + E):
         v_t = (math.sin(phi) - mu * (1.0 + E) * math.cos(phi)) * v
         omega = -2.5 * mu * (1.0 + E) * math.cos(phi) * v / R

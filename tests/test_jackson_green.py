@@ -72,7 +72,7 @@ def test_below_yield_is_elastic(reference):
 
 
 def test_force_drop_at_switch():
-    """physics.md: JG-5 at d* = 1.9 is about 0.90 of Hertz for nu = 0.3."""
+    """docs/physics/contact.md: JG-5 at d* = 1.9 is about 0.90 of Hertz for nu = 0.3."""
     sc = sphere(1.0, 300e6)
     b = di.JacksonGreen().bind(sc.normal_problem().contact, 1.0)
     d = b.switch_deflection()

@@ -1,4 +1,4 @@
-"""Rotating link (compound pendulum) on a flat (data.md E, physics.md sections 3, 6).
+"""Rotating link (compound pendulum) on a flat (the rotating-link paper, docs/physics).
 
 The references are computed here, independently of the scene: the swing by
 integrating the pendulum ODE with scipy, the contact-point velocities from the
@@ -18,7 +18,7 @@ from scipy.integrate import solve_ivp
 
 import diffimpact as di
 
-# data.md E: a steel link on a flat of the same steel (the paper's numbers did
+# The rotating-link paper: a steel link on a flat of the same steel (its numbers did
 # not survive the text extraction; these are ordinary structural-steel values).
 STEEL = steel()
 DENSITY = 7850.0
@@ -170,7 +170,7 @@ def test_energy_conserved_hertz():
 
 
 # --------------------------------------------------------------------------
-# Trends of the rotating-link study (data.md E): Jackson-Green with friction.
+# Trends of the rotating-link study: Jackson-Green with friction.
 # --------------------------------------------------------------------------
 
 
@@ -215,7 +215,7 @@ def test_rebound_decreases_with_friction():
 
 def test_contact_time_grows_with_length():
     """Released horizontal, longer links (same rod) stay longer in contact
-    (data.md E, the source's Fig. 16)."""
+    (the rotating-link paper, the source's Fig. 16)."""
     times = [
         float(_jg(link(length), 0.2, 0.0).contact_time)
         for length in (0.1, 0.2, 0.3, 0.4)

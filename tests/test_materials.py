@@ -30,9 +30,9 @@ def test_weaker_material_g3():
 
 
 def test_adams_stiffness_from_materials():
-    """physics.md (G-1): K = 4/(3 pi (h1+h2)) sqrt(R) equals (4/3) E* sqrt(R);
+    """(G-1): K = 4/(3 pi (h1+h2)) sqrt(R) equals (4/3) E* sqrt(R);
     in kg-mm-s the steel pin in an aluminium bush gives K = 249804.08, in cast
-    iron 331781.04 (data.md D), computed here from the materials.
+    iron 331781.04 (Constantin et al.), computed here from the materials.
 
     The source's numbers do not follow exactly from its own formula and inputs
     (E 210000/71000 MPa, nu 0.3/0.33, R = 10.0049975 mm): evaluated exactly they

@@ -21,7 +21,7 @@ import diffimpact as di
 from diffimpact import SpanSettings, simulate_span
 from diffimpact.scenes import BouncingBar, SliderCrank
 
-# data.md B: the xi = 1/8 bar (the source of data.md D gives no bar data).
+# Wang & Fu: the xi = 1/8 bar (the source of Constantin et al. gives no bar data).
 BAR = di.Material(200.83e9, 0.3, 230.63e6)
 PLATE = di.Material(205e9, 0.29, 355e6)
 MASS, HEIGHT, G = 0.04718, 0.3, 9.81
@@ -35,7 +35,7 @@ def bar(height=HEIGHT):
 
 @pytest.fixture(scope="module")
 def bouncing():
-    """The source's board law (ADAMS IMPACT, data.md D in SI) for 2 s: the
+    """The source's board law (ADAMS IMPACT, Constantin et al. in SI) for 2 s: the
     bar settles after about 1.4 s."""
     sc = bar()
     return sc, simulate_span(sc, di.AdamsImpact(), (0.0, 2.0), settings=BAR_SETTINGS)
@@ -239,7 +239,7 @@ def test_stiffness_from_materials():
     within 1e-4 of the values the source prints (249804.08, 331781.04; its
     formula gives 249787.63 and 331779.78 exactly, see test_materials.py)."""
     al = SliderCrank()
-    r1, r2 = 20.0, 20.02  # mm (data.md D)
+    r1, r2 = 20.0, 20.02  # mm (Constantin et al.)
     radius = r1 * r2 / (r1 + r2)
     steel = (210000.0, 0.3)  # MPa = N/mm^2
     for sc, other, printed in [

@@ -22,9 +22,9 @@ import diffimpact as di
 
 sharp = sharp_reference()
 
-# The data.md A ball on the prism (conftest).
+# The Alaci et al. ball on the prism (conftest).
 R, M, H = BALL_RADIUS, BALL_MASS, DROP_HEIGHT
-# data.md B: the xi = 1/8 bar on AISI 1045, dropped 0.3 m.
+# Wang & Fu: the xi = 1/8 bar on AISI 1045, dropped 0.3 m.
 BAR = di.Material(200.83e9, 0.3, 230.63e6)
 PLATE = di.Material(205e9, 0.29, 355e6)
 BAR_MASS = 0.04718

@@ -21,7 +21,7 @@ import diffimpact as di
 
 sharp = sharp_reference()
 
-# The data.md A ball on the prism (conftest).
+# The Alaci et al. ball on the prism (conftest).
 R, M, H = BALL_RADIUS, BALL_MASS, DROP_HEIGHT
 VELOCITIES = (
     "normal_velocity_after",
