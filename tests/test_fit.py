@@ -113,7 +113,12 @@ def test_bounds_by_sigmoid_keep_the_parameter_inside(tmp_path):
         start={"yield_strength": 300e6},
         bounds={"yield_strength": (100e6, 350e6)},  # truth 400e6 is outside
     )
-    assert 100e6 < r.values[0] < 350e6 and r.values[0] > 349e6
+    # The optimum sits on the bound, at infinity on the sigmoid's scale: the
+    # fit approaches it without converging (and says so).  From the start
+    # value 300 MPa it ends at 348.6 MPa after 100 steps (regression value;
+    # started mid-bounds, 225 MPa, it ends at 349.4 MPa).
+    assert 100e6 < r.values[0] < 350e6 and r.values[0] > 348e6
+    assert not r.converged and "did not converge" in r.warnings[0]
 
 
 def test_bounded_fit_starts_at_its_start_value(tmp_path):
