@@ -170,7 +170,7 @@ def test_friction_needs_smooth():
 def test_planar_peak_force_of_rate_dependent_law():
     """The planar solve takes the peak force of a rate-dependent law from its
     accepted steps, refined on the solver's dense interpolant (not an ODE
-    state): measured 1.8e-8 from a tight 1-DOF solve for HC (e = 0.7), 20-70
+    state): measured 2.0e-8 from a tight 1-DOF solve for HC (e = 0.7), 20-70
     deg (an ODE state error-controlled 1e6 times more loosely gave 4.7e-5).
     Bound it at 2e-7."""
     law = di.HuntCrossley(cor=0.7)
@@ -186,7 +186,10 @@ def test_forward_and_reverse_mode_agree_on_the_tracked_extrema():
     """The planar solve's running extrema (peak force of a rate-dependent law,
     least slip) live in the wrapped solver's state: forward mode (what `fit`
     uses, ``diffrax.ForwardMode``) and reverse mode (the default adjoint)
-    differentiate them alike.  Measured 2.5e-9 apart (compliant friction, HC)."""
+    both differentiate them.  Measured (compliant friction, HC, 0.6 rad):
+    tangential velocity 7.5e-9 apart, peak force alike, least slip 7.2e-6 (it
+    lies inside a step, at the vertex of a sampled parabola, whose location
+    the two modes see through different step-size derivatives)."""
     ball = di.Material(208e9, 0.3)
     prism = di.Material(205e9, 0.29, 400e6)
 
@@ -198,12 +201,16 @@ def test_forward_and_reverse_mode_agree_on_the_tracked_extrema():
             friction=di.Friction(mu, compliant=True),
             settings=di.SolverSettings(adjoint=adjoint),
         )
-        return (
-            r.extras["tangential_velocity_after"]
-            + r.max_force * 1e-6
-            + r.extras["min_slip_ratio"]
+        return jnp.stack(
+            [
+                r.extras["tangential_velocity_after"],
+                r.max_force,
+                r.extras["min_slip_ratio"],
+            ]
         )
 
     forward = jax.jacfwd(f)(0.2, diffrax.ForwardMode())
-    reverse = jax.grad(f)(0.2, di.SolverSettings().adjoint)
-    assert rel(forward, reverse) < 1e-7
+    reverse = jax.jacrev(f)(0.2, di.SolverSettings().adjoint)
+    assert rel(forward[0], reverse[0]) < 1e-7
+    assert float(forward[1]) == pytest.approx(float(reverse[1]), rel=1e-7, abs=1e-6)
+    assert rel(forward[2], reverse[2]) < 5e-5
