@@ -73,6 +73,22 @@ def on_pre_build(config):
     _anchors.update(physics_anchors())
 
 
+PLOT_LINK = re.compile(r"\[`([\w.-]+\.png)`\]\(\1\)")
+
+
+def on_page_markdown(markdown, page, config, files):
+    # RESULTS.md links its plots (for a reader on GitHub); the Performance
+    # page shows them
+    if page.file.src_uri != "performance.md":
+        return markdown
+    paragraphs = markdown.split("\n\n")
+    for i, text in enumerate(paragraphs):
+        plots = PLOT_LINK.findall(text)
+        if plots and not text.lstrip().startswith("|"):  # not inside a table
+            paragraphs[i] = text + "".join(f"\n\n![{p}]({p})" for p in plots)
+    return "\n\n".join(paragraphs)
+
+
 def on_page_content(html, page, config, files):
     if page.file.src_uri.startswith("physics/") or not _anchors:
         return html
