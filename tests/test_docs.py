@@ -22,13 +22,15 @@ HOOKS_SPEC.loader.exec_module(HOOKS)
 
 PAGES = sorted(DOCS.rglob("*.md"))
 # what a reader of the site or of the package sees: README, docs (with the
-# pages generated from RESULTS.md and CHANGELOG.md), the rendered notebooks
-# and the package's docstrings and comments
+# pages generated from RESULTS.md and CHANGELOG.md), the rendered notebooks,
+# the package's docstrings and comments, and the data files' provenance
 SHOWN = (
     [ROOT / "README.md", ROOT / "CHANGELOG.md", ROOT / "benchmarks" / "RESULTS.md"]
     + PAGES
     + sorted((ROOT / "notebooks").glob("*.ipynb"))
     + sorted((ROOT / "src" / "diffimpact").rglob("*.py"))
+    + [ROOT / "data" / "README.md", ROOT / "data" / "make_synthetic.py"]
+    + sorted((ROOT / "data").rglob("*.csv"))
 )
 NOTEBOOKS = sorted((ROOT / "notebooks").glob("*.ipynb"))
 
