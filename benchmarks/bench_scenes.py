@@ -380,12 +380,9 @@ class PlanarProblem:
 def planar_problem(scene, law, friction, settings: di.SolverSettings) -> PlanarProblem:
     """The set-up of ``diffimpact._planar_solve.solve_planar`` (its own
     ``planar_setup``)."""
-    args, state, weights, _ = planar_setup(scene, law, friction, settings)
+    args, state, _ = planar_setup(scene, law, friction, settings)
     y0, unravel = ravel_pytree(state)
-    unchecked = ()
-    if weights is not None:  # every state is error-controlled alike (None)
-        flat_weights = np.asarray(ravel_pytree(weights)[0])
-        unchecked = tuple(int(i) for i in np.nonzero(flat_weights == 0.0)[0])
+    unchecked = ()  # every state is error-controlled (no diagnostic states)
     return PlanarProblem(args, state, y0, unravel, unchecked, settings.max_time)
 
 

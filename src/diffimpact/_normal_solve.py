@@ -186,7 +186,6 @@ def _solve(
     conds,
     directions,
     dense=False,
-    weights=None,
     extrema=(None, None),
 ):
     """One diffrax solve that ends at the first of ``conds`` (real-valued,
@@ -196,11 +195,9 @@ def _solve(
     running maximum and minimum over the solve are returned in
     ``sol.solver_state[1]`` (`diffimpact._extrema`); None: not tracked.
 
-    ``y0`` is an array or a pytree of arrays (the planar solve's
-    ``PlanarState``).  ``weights``: a pytree like ``y0`` scaling each state's
-    share of the step-size error estimate (diagnostic integrals that never
-    feed back into the dynamics: weight 0 leaves one out, a small weight
-    loosens its tolerance by that factor); None weighs every state alike."""
+    ``y0`` is a pytree of arrays (`NormalState`, the planar solve's
+    `PlanarState`); every state feeds back into the motion and is
+    error-controlled alike."""
     # Tolerances no tighter than the state's dtype can honour: the float64
     # defaults (1e-11 / 1e-13) would stall a float32 solve, so they are
     # floored at 100 machine epsilons of the state (no effect in float64).
@@ -209,11 +206,6 @@ def _solve(
     rtol, atol = max(settings.rtol, floor), max(settings.atol, floor)
     event_tol = max(settings.event_tol, floor)
     norm = optx.rms_norm
-    if weights is not None:
-
-        def norm(err):
-            return optx.rms_norm(jax.tree.map(jnp.multiply, err, weights))
-
     adjoint = stored_steps_adjoint(settings.adjoint, settings.max_steps)
     event = diffrax.Event(
         cond_fn=jax.tree.map(_default_float, conds),

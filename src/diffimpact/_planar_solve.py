@@ -169,8 +169,8 @@ def _separation(t, y: PlanarState, p: _Planar, **kw):
 
 
 def planar_setup(scene, law, friction, settings):
-    """The planar problem at first contact: ``(args, y0, weights)`` for
-    ``_solve(_planar_field, y0, args, ..., weights=weights)`` (also used by
+    """The planar problem at first contact: ``(args, y0, inside)`` for
+    ``_solve(_planar_field, y0, args, ...)`` (also used by
     benchmarks/bench_scenes.py to hand scipy exactly the same problem)."""
     q0, q_dot0 = scene.initial_state()
     inv_mass = 1.0 / scene.mass_diagonal()
@@ -238,10 +238,7 @@ def planar_setup(scene, law, friction, settings):
         works=jnp.zeros(2, v0.dtype),
         spring=zero if compliant else None,
     )
-    # Every state feeds back into the motion, so every state is
-    # error-controlled alike (no weights); the peak force and the least slip
-    # are not states but running extrema of the accepted steps (`_extrema`).
-    return p, y0, None, inside
+    return p, y0, inside
 
 
 def _peak_force(t, y: PlanarState, p: _Planar):
@@ -255,7 +252,7 @@ def _slip_ratio(t, y: PlanarState, p: _Planar):
 
 
 def solve_planar(scene, law, friction, settings):
-    p, y0, weights, inside = planar_setup(scene, law, friction, settings)
+    p, y0, inside = planar_setup(scene, law, friction, settings)
     sc, bound = p.sc, p.bound
     t_unit, impulse_unit, work_unit = sc.time, p.impulse_unit, p.work_unit
     v0, v_t0, slip_sign = p.v0, p.v_t0, p.slip_sign
@@ -270,7 +267,6 @@ def solve_planar(scene, law, friction, settings):
         settings,
         _separation,
         False,
-        weights=weights,
         extrema=extrema,
     )
     tau_end, separated = _event_time(sol)
