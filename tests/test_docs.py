@@ -42,6 +42,8 @@ def python_blocks():
         text = path.read_text()
         blocks = re.findall(r"^```python\n(.*?)^```", text, flags=re.M | re.S)
         for i, block in enumerate(blocks):
+            if block.startswith("--8<--"):
+                continue  # a file's section, run where it lives (its tests)
             yield pytest.param(path, block, id=f"{path.relative_to(ROOT)}[{i}]")
 
 

@@ -20,7 +20,7 @@ import equinox as eqx
 import jax.numpy as jnp
 
 from ._checks import as_float
-from ._data import DataError, parse_column
+from ._data import QUANTITIES, DataError, parse_column
 from ._laws._base import AbstractNormalLaw
 from ._laws._friction import Friction
 from ._laws._jackson_green import JacksonGreen
@@ -66,7 +66,7 @@ class SceneSpec:
     cls: type
     inputs: dict[str, str]  # quantity -> scene field name
     required: tuple[str, ...]
-    default: Callable[[], Experiment]
+    default: Callable[[], Experiment] | None
     parameters: dict[str, str]  # short name -> dotted path in Experiment
     tangential_before: Callable | None = None  # CM tangential velocity before
 
@@ -188,7 +188,8 @@ SCENES: dict[str, SceneSpec] = {
 
 
 def scene_spec(scene) -> SceneSpec:
-    """The registry entry for a scene name or a scene instance."""
+    """The registry entry for a scene name or a scene instance; for a scene
+    type of the user's, the mapping its `data_inputs` declares."""
     if isinstance(scene, str):
         key = scene.strip().lower().replace("-", "_")
         if key not in SCENES:
@@ -199,10 +200,38 @@ def scene_spec(scene) -> SceneSpec:
     for spec in SCENES.values():
         if type(scene) is spec.cls:
             return spec
-    raise ValueError(
-        f"scene type {type(scene).__name__} has no data mapping; "
-        f"supported: {sorted(SCENES)}"
-    )
+    return _declared_spec(type(scene))
+
+
+# The short names every scene with friction accepts; anything else by its
+# dotted path (``scene.radius``) or as a field of the law.
+_FRICTION_NAMES = {"mu": "friction.mu", "mu_v": "friction.mu_v"}
+
+
+def _declared_spec(cls: type) -> SceneSpec:
+    name = cls.__name__
+    inputs = dict(getattr(cls, "data_inputs", {}))
+    if not inputs:
+        raise ValueError(
+            f"scene type {name} has no data mapping: declare one as a class "
+            "variable, e.g. `data_inputs: ClassVar = {'angle': 'angle'}` "
+            "(input quantity -> field), or use a built-in scene "
+            f"{sorted(SCENES)}"
+        )
+    fields = {f.name for f in dataclasses.fields(cls)}
+    for quantity, field in inputs.items():
+        if QUANTITIES.get(quantity) is None or QUANTITIES[quantity].role != "input":
+            known = sorted(q for q, v in QUANTITIES.items() if v.role == "input")
+            raise ValueError(
+                f"{name}.data_inputs: {quantity!r} is not an input quantity; "
+                f"expected one of {known}"
+            )
+        if field not in fields:
+            raise ValueError(
+                f"{name}.data_inputs[{quantity!r}]: {field!r} is not a field of "
+                f"{name} (its fields: {sorted(fields)})"
+            )
+    return SceneSpec(name, cls, inputs, (), None, _FRICTION_NAMES)
 
 
 def resolve_parameter(experiment: Experiment, name: str) -> str:

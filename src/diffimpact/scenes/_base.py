@@ -3,6 +3,8 @@
 from __future__ import annotations
 
 import abc
+from collections.abc import Mapping
+from typing import ClassVar
 
 import equinox as eqx
 from jaxtyping import Array
@@ -26,6 +28,17 @@ class NormalProblem(eqx.Module):
 
 
 class AbstractScene(AbstractValidated):
+    """A scene: bodies, materials and the state at first contact.
+
+    `data_inputs` lets `diffimpact.fit` and `diffimpact.predict` read a
+    user-defined scene from an experiment file: which input quantity of the
+    file sets which field, e.g. ``{"impact_velocity": "speed", "angle":
+    "angle"}`` (quantities as in the CSV format: ``angle_deg`` is converted to
+    ``angle`` in rad).  Empty: the scene has no data mapping.
+    """
+
+    data_inputs: ClassVar[Mapping[str, str]] = {}
+
     @abc.abstractmethod
     def normal_problem(self) -> NormalProblem:
         """The scene's normal contact problem at first contact."""
