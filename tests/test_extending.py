@@ -12,6 +12,7 @@ import numpy as np
 import pytest
 
 import diffimpact as di
+from diffimpact._observables import SCENES, _declared_spec
 
 BALL = di.Material(208e9, 0.3)
 PLATE = di.Material(205e9, 0.29)
@@ -183,3 +184,22 @@ def test_a_scene_without_data_mapping_is_told_how_to_declare_one(tmp_path):
     experiment = di.Experiment(Undeclared(0.02, 0.01, 2.0, 0.3), di.Hertz())
     with pytest.raises(ValueError, match="Undeclared has no data mapping.*data_inputs"):
         di.fit(tmp_path / "a.csv", experiment, ["law.exponent"])
+
+
+@pytest.mark.parametrize(
+    "declared, message",
+    [
+        ({"speed": "speed"}, "'speed' is not an input quantity"),
+        ({"impact_velocity": "velocity"}, r"'velocity' is not a field of Bad"),
+        ({"tangential_velocity": "speed"}, "not an input quantity"),
+    ],
+)
+def test_a_wrong_data_mapping_is_named(declared, message):
+    Bad = type("Bad", (HoopOnIncline,), {"data_inputs": declared})
+    with pytest.raises(ValueError, match=message):
+        di.predict(di.Experiment(Bad(0.02, 0.01, 2.0, 0.3), di.Hertz()))
+
+
+@pytest.mark.parametrize("name", sorted(SCENES))
+def test_built_in_scenes_declare_their_data_as_a_user_scene_would(name):
+    assert _declared_spec(SCENES[name].cls).inputs == SCENES[name].inputs

@@ -370,32 +370,26 @@ def main(argv=None) -> int:
         metavar="NAME=VALUE",
         help="a parameter by name in SI, e.g. mu=0.2 or yield_strength=4e8",
     )
-    s.add_argument(
-        "--velocity",
-        type=float,
-        default=None,
-        help="approach speed [m/s] (normal_impact; default 1)",
-    )
-    s.add_argument(
-        "--radius", type=float, default=None, help="sphere radius [m] (default 5e-3)"
-    )
-    s.add_argument(
-        "--mass", type=float, default=None, help="mass [kg] (default: from density)"
-    )
-    s.add_argument(
-        "--density",
-        type=float,
-        default=None,
-        help="[kg/m^3] for the mass of normal_impact (default 7850)",
-    )
-    s.add_argument(
-        "--gravity", type=float, default=None, help="[m/s^2] along the approach"
-    )
+    numbers = [
+        ("--velocity", "approach speed [m/s] (normal_impact; default 1)"),
+        ("--radius", "sphere radius [m] (default 5e-3)"),
+        ("--mass", "mass [kg] (default: from density)"),
+        ("--density", "[kg/m^3] for the mass of normal_impact (default 7850)"),
+        ("--gravity", "[m/s^2] along the approach"),
+        ("--cor", "target COR (dissipative laws)"),
+    ]
+    for who, (e, nu, sy) in _BODY_DEFAULTS.items():
+        numbers += [
+            (f"--{who}-modulus", f"Young's modulus [Pa] of the {who}", e),
+            (f"--{who}-poisson", f"Poisson ratio of the {who}", nu),
+            (f"--{who}-yield", f"yield strength [Pa] of the {who}", sy),
+        ]
+    for flag, text, *default in numbers:
+        if default:
+            text += f" (normal_impact default {default[0]:g})"
+        s.add_argument(flag, type=float, default=None, help=text)
     s.add_argument(
         "--law", choices=_LAWS, default=None, help="normal law (default jackson-green)"
-    )
-    s.add_argument(
-        "--cor", type=float, default=None, help="target COR (dissipative laws)"
     )
     s.add_argument(
         "--method",
@@ -404,25 +398,6 @@ def main(argv=None) -> int:
         help="solver (default: smooth for normal_impact, else auto = the closed "
         "form where it applies; 'all' compares the three, normal_impact)",
     )
-    for who, (e, nu, sy) in _BODY_DEFAULTS.items():
-        s.add_argument(
-            f"--{who}-modulus",
-            type=float,
-            default=None,
-            help=f"Young's modulus [Pa] of the {who} (normal_impact default {e:g})",
-        )
-        s.add_argument(
-            f"--{who}-poisson",
-            type=float,
-            default=None,
-            help=f"Poisson ratio of the {who} (normal_impact default {nu:g})",
-        )
-        s.add_argument(
-            f"--{who}-yield",
-            type=float,
-            default=None,
-            help=f"yield strength [Pa] of the {who} (normal_impact default {sy:g})",
-        )
     s.set_defaults(func=simulate_cmd)
 
     from . import _cli_fit, _cli_sweep

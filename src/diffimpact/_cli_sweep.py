@@ -33,12 +33,12 @@ Every process computes its devices' rows; process 0 writes the files.
 from __future__ import annotations
 
 import argparse
-import math
 import sys
 import time
 from pathlib import Path
 
 from ._cli_files import open_new
+from ._data import finite_number
 
 # (input name, command-line flag, CSV unit suffix, help text).  The order is
 # the order of the grid axes (the first varies slowest) and of the CSV columns.
@@ -123,16 +123,6 @@ def register(subparsers) -> argparse.ArgumentParser:
 # --------------------------------------------------------------------------
 
 
-def _number(text: str, flag: str) -> float:
-    try:
-        x = float(text)
-    except ValueError:
-        raise ValueError(f"{flag}: {text!r} is not a number") from None
-    if not math.isfinite(x):
-        raise ValueError(f"{flag}: {text!r} must be finite")
-    return x
-
-
 def parse_axis(spec: str, flag: str, sampling: bool):
     """Parse one axis.  Returns ``("values", array, is_log)`` for a grid axis
     or fixed value, ``("range", (lo, hi, kind))`` for a sampled range."""
@@ -140,7 +130,7 @@ def parse_axis(spec: str, flag: str, sampling: bool):
 
     parts = spec.split(":")
     if len(parts) == 1:
-        values = [_number(t, flag) for t in spec.split(",")]
+        values = [finite_number(t, flag) for t in spec.split(",")]
         if sampling and len(values) > 1:
             raise ValueError(f"{flag}: with --sample give a range LO:HI[:log]")
         return "values", np.asarray(values, dtype=float), False
@@ -151,7 +141,7 @@ def parse_axis(spec: str, flag: str, sampling: bool):
             raise ValueError(
                 f"{flag}: with --sample give a range LO:HI or LO:HI:log, got {spec!r}"
             )
-        lo, hi = (_number(t, flag) for t in nums)
+        lo, hi = (finite_number(t, flag) for t in nums)
         if not lo < hi:
             raise ValueError(f"{flag}: needs LO < HI, got {spec!r}")
         if log and lo <= 0:
@@ -159,7 +149,7 @@ def parse_axis(spec: str, flag: str, sampling: bool):
         return "range", (lo, hi, "log" if log else "lin")
     if len(nums) != 3:
         raise ValueError(f"{flag}: give LO:HI:N or LO:HI:N:log, got {spec!r}")
-    lo, hi = _number(nums[0], flag), _number(nums[1], flag)
+    lo, hi = finite_number(nums[0], flag), finite_number(nums[1], flag)
     try:
         count = int(nums[2])
     except ValueError:

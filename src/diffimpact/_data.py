@@ -74,56 +74,37 @@ class Quantity:
     maximum: float = math.inf  # largest physically possible value (SI)
 
 
-def _q(name, dimension, role, nonnegative, doc, maximum=math.inf):
-    return Quantity(name, dimension, role, nonnegative, doc, maximum)
+# name | dimension | role | sign (">= 0" or "any") | what it is.  A normal COR
+# above 1 would be a rebound with more energy than the approach: no passive
+# impact does that (the ``max 1`` column).
+_TABLE = """
+drop_height           | length           | input  | >= 0 | height of the drop
+impact_velocity       | velocity         | input  | >= 0 | normal approach speed
+angle                 | angle            | input  | >= 0 | incline / impact angle
+release_angle         | angle            | input  | >= 0 | release angle of a link
+link_length           | length           | input  | >= 0 | length of a rotating link
+mass                  | mass             | input  | >= 0 | mass of the moving body
+radius                | length           | input  | >= 0 | radius of the sphere or tip
+contact_time          | time             | output | >= 0 | first contact to separation
+rebound_velocity      | velocity         | output | >= 0 | normal rebound speed of the contact point
+tangential_velocity   | velocity         | output | any  | tangential velocity of the centre of mass after the impact
+angular_velocity      | angular_velocity | output | any  | spin after
+cor_normal            | dimensionless    | output | >= 0 | Newton's COR e_n | max 1
+cor_tangential        | dimensionless    | output | any  | tangential COR e_t of the centre of mass
+max_force             | force            | output | >= 0 | peak normal contact force
+max_deflection        | length           | output | >= 0 | maximum interference d_m
+permanent_deformation | length           | output | >= 0 | residual interference d_r
+"""  # noqa: E501
+
+
+def _quantity(row: str) -> Quantity:
+    name, dimension, role, sign, doc, *limit = (c.strip() for c in row.split("|"))
+    maximum = float(limit[0].removeprefix("max ")) if limit else math.inf
+    return Quantity(name, dimension, role, sign == ">= 0", doc, maximum)
 
 
 QUANTITIES: dict[str, Quantity] = {
-    q.name: q
-    for q in [
-        _q("drop_height", "length", "input", True, "height of the drop"),
-        _q("impact_velocity", "velocity", "input", True, "normal approach speed"),
-        _q("angle", "angle", "input", True, "incline / impact angle"),
-        _q("release_angle", "angle", "input", True, "release angle of a link"),
-        _q("link_length", "length", "input", True, "length of a rotating link"),
-        _q("mass", "mass", "input", True, "mass of the moving body"),
-        _q("radius", "length", "input", True, "radius of the sphere or tip"),
-        _q("contact_time", "time", "output", True, "first contact to separation"),
-        _q(
-            "rebound_velocity",
-            "velocity",
-            "output",
-            True,
-            "normal rebound speed of the contact point",
-        ),
-        _q(
-            "tangential_velocity",
-            "velocity",
-            "output",
-            False,
-            "tangential velocity of the centre of mass after the impact",
-        ),
-        _q("angular_velocity", "angular_velocity", "output", False, "spin after"),
-        # A normal COR above 1 would be a rebound with more energy than the
-        # approach: no passive impact does that.
-        _q("cor_normal", "dimensionless", "output", True, "Newton's COR e_n", 1.0),
-        _q(
-            "cor_tangential",
-            "dimensionless",
-            "output",
-            False,
-            "tangential COR e_t of the centre of mass",
-        ),
-        _q("max_force", "force", "output", True, "peak normal contact force"),
-        _q("max_deflection", "length", "output", True, "maximum interference d_m"),
-        _q(
-            "permanent_deformation",
-            "length",
-            "output",
-            True,
-            "residual interference d_r",
-        ),
-    ]
+    q.name: q for q in map(_quantity, _TABLE.strip().splitlines())
 }
 
 
@@ -386,6 +367,17 @@ def _read_lines(path: str) -> list[str]:
     return text.splitlines()
 
 
+def finite_number(text: str, where: str) -> float:
+    """``text`` as a finite float, or a `DataError` that starts with ``where``."""
+    try:
+        x = float(text)
+    except ValueError:
+        raise DataError(f"{where}: {text!r} is not a number") from None
+    if not math.isfinite(x):
+        raise DataError(f"{where}: {text!r} is not a finite number")
+    return x
+
+
 def _cell(text: str, col: Column, path: str, lineno: int) -> float:
     where = f"{path}, line {lineno}, column {col.header!r}"
     text = text.strip()
@@ -394,12 +386,7 @@ def _cell(text: str, col: Column, path: str, lineno: int) -> float:
         if q.role == "output":
             return math.nan  # not measured in this row
         raise DataError(f"{where}: empty, but an input needs a value in every row")
-    try:
-        x = float(text)
-    except ValueError:
-        raise DataError(f"{where}: {text!r} is not a number") from None
-    if not math.isfinite(x):
-        raise DataError(f"{where}: {text!r} is not a finite number")
+    x = finite_number(text, where)
     if q.nonnegative and x < 0:
         raise DataError(
             f"{where}: {text} is negative; {q.name} ({q.doc}) must be >= 0 "

@@ -99,11 +99,8 @@ def _history(p: _Span, taus, ys, valid, y0, e0):
     ys = _where_rows(valid, ys, y0)
 
     def one(tau, y):
-        t = tau * p.time
         q, q_dot, d_m = p.unpack(y)
         d, j_n, j_t, v_n, v_t, f_n, f_t = p.contact_forces(q, q_dot, d_m)
-        kinetic = p.kinetic(q, q_dot)
-        potential = p.scene.potential(q)
         v_c_each = p.elastic_energy(d)
         # `SpanHistory`'s fields, and two per-contact extras for the impacts
         return dict(
@@ -113,14 +110,14 @@ def _history(p: _Span, taus, ys, valid, y0, e0):
             penetration_rate=v_n,
             normal_force=f_n,
             friction_force=f_t,
-            kinetic_energy=kinetic,
-            potential_energy=potential,
+            kinetic_energy=p.kinetic(q, q_dot),
+            potential_energy=p.scene.potential(q),
             applied_work=y.applied_work * p.energy,
             contact_work=jnp.sum(y.normal_work) * p.energy,
             friction_work=jnp.sum(y.friction_work) * p.energy,
             contact_energy=jnp.sum(v_c_each),
             impulse=y.impulses * p.impulse_unit,
-            outputs=p.scene.report(t, q, q_dot, f_n, f_t),
+            outputs=p.scene.report(tau * p.time, q, q_dot, f_n, f_t),
             v_c_each=v_c_each,
             threshold=p.threshold(d_m) if p.hysteretic else jnp.zeros_like(d),
         )

@@ -488,13 +488,11 @@ def _assemble(problem: NormalProblem, bound: AbstractBoundLaw, raw: dict) -> dic
     theorem, so they hold for whatever force the solve integrated.
     """
     m, g, v0 = problem.mass, problem.gravity, problem.velocity
-    d_m = raw["max_deflection"]
-    d_r = bound.residual_deflection(d_m)
-    v_out = raw["rebound_velocity"]
+    d_m, v_out = raw["max_deflection"], raw["rebound_velocity"]
     t_c, t_load = raw["contact_time"], raw["compression_time"]
-    max_force = raw.get("max_force")
-    if max_force is None:
-        max_force = bound.peak_force(d_m)
+    d_r = bound.residual_deflection(d_m)
+    # A rate-independent law's peak is its force at d_m (no running peak).
+    max_force = raw["max_force"] if "max_force" in raw else bound.peak_force(d_m)
     return result_fields(
         contact_time=t_c,
         compression_time=t_load,

@@ -58,17 +58,35 @@ class Experiment(eqx.Module):
         return scene_spec(scene).default()
 
 
+# The short names every scene with friction accepts; anything else by its
+# dotted path (``scene.radius``) or as a field of the law.
+_FRICTION_NAMES = {"mu": "friction.mu", "mu_v": "friction.mu_v"}
+
+
 @dataclasses.dataclass(frozen=True)
 class SceneSpec:
-    """How a scene meets the data: CSV inputs -> scene fields, defaults, names."""
+    """How a scene meets the data: its name, its built-in experiment, the
+    short names of its parameters (each a dotted path in the `Experiment`);
+    which inputs set which fields is declared by the scene class itself
+    (`AbstractScene.data_inputs`, `data_required`)."""
 
     name: str
     cls: type
-    inputs: dict[str, str]  # quantity -> scene field name
-    required: tuple[str, ...]
-    default: Callable[[], Experiment] | None
-    parameters: dict[str, str]  # short name -> dotted path in Experiment
+    default: Callable[[], Experiment] | None = None
+    parameters: dict[str, str] = dataclasses.field(
+        default_factory=lambda: dict(_FRICTION_NAMES)
+    )
     tangential_before: Callable | None = None  # CM tangential velocity before
+
+    @property
+    def inputs(self) -> dict[str, str]:
+        """Input quantity -> scene field."""
+        return dict(self.cls.data_inputs)
+
+    @property
+    def required(self) -> tuple[str, ...]:
+        """The inputs every row must give."""
+        return tuple(self.cls.data_required)
 
 
 # Ball-prism defaults (Alaci, Filote & Ciornei): bearing-steel ball, 19 mm diameter, on
@@ -134,56 +152,31 @@ _PLATE = {
 }
 _PLATE_NO_RADIUS = {k: v for k, v in _PLATE.items() if k != "radius"}
 
+
+# The free bar is the body that yields (230.63 MPa against 355 MPa).
+_BAR = {k: v.replace("scene.flat.", "scene.body.") for k, v in _PLATE_NO_RADIUS.items()}
+_NORMAL = {k: v for k, v in _PLATE.items() if not k.startswith("mu")}
+_LINK = {**_PLATE_NO_RADIUS, "length": "scene.length"}
+
+
+def _sphere_tangential_before(scene):
+    return scene.impact_speed * jnp.sin(scene.angle)
+
+
 SCENES: dict[str, SceneSpec] = {
-    "sphere_on_incline": SceneSpec(
-        name="sphere_on_incline",
-        cls=SphereOnIncline,
-        inputs={
-            "drop_height": "height",
-            "angle": "angle",
-            "mass": "mass",
-            "radius": "radius",
-        },
-        required=("drop_height", "angle"),
-        default=_sphere_on_incline,
-        parameters=_PLATE,
-        tangential_before=lambda s: s.impact_speed * jnp.sin(s.angle),
-    ),
-    "normal_impact": SceneSpec(
-        name="normal_impact",
-        cls=NormalImpact,
-        inputs={"impact_velocity": "velocity", "mass": "mass", "radius": "radius"},
-        required=("impact_velocity",),
-        default=_normal_impact,
-        parameters={k: v for k, v in _PLATE.items() if not k.startswith("mu")},
-    ),
-    "rotating_link": SceneSpec(
-        name="rotating_link",
-        cls=RotatingLink,
-        inputs={
-            "link_length": "length",
-            "angle": "impact_angle",
-            "release_angle": "release_angle",
-            "mass": "mass",
-        },
-        required=("link_length",),
-        default=_rotating_link,
-        parameters={**_PLATE_NO_RADIUS, "length": "scene.length"},
-    ),
-    "free_bar": SceneSpec(
-        name="free_bar",
-        cls=FreeBar,
-        inputs={"drop_height": "height", "angle": "angle", "mass": "mass"},
-        required=("drop_height",),
-        default=_free_bar,
-        parameters={
-            **_PLATE_NO_RADIUS,
-            # The bar is the body that yields (230.63 MPa against 355 MPa).
-            "yield_strength": "scene.body.yield_strength",
-            "youngs_modulus": "scene.body.youngs_modulus",
-            "poisson_ratio": "scene.body.poisson_ratio",
-        },
-    ),
+    spec.name: spec
+    for spec in (
+        SceneSpec(
+            "sphere_on_incline",
+            SphereOnIncline,
+            _sphere_on_incline,
+            _PLATE,
+            _sphere_tangential_before,
+        ),
+        SceneSpec("normal_impact", NormalImpact, _normal_impact, _NORMAL),
+        SceneSpec("rotating_link", RotatingLink, _rotating_link, _LINK),
+        SceneSpec("free_bar", FreeBar, _free_bar, _BAR),
+    )
 }
 
 
@@ -201,11 +194,6 @@ def scene_spec(scene) -> SceneSpec:
         if type(scene) is spec.cls:
             return spec
     return _declared_spec(type(scene))
-
-
-# The short names every scene with friction accepts; anything else by its
-# dotted path (``scene.radius``) or as a field of the law.
-_FRICTION_NAMES = {"mu": "friction.mu", "mu_v": "friction.mu_v"}
 
 
 def _declared_spec(cls: type) -> SceneSpec:
@@ -231,7 +219,10 @@ def _declared_spec(cls: type) -> SceneSpec:
                 f"{name}.data_inputs[{quantity!r}]: {field!r} is not a field of "
                 f"{name} (its fields: {sorted(fields)})"
             )
-    return SceneSpec(name, cls, inputs, (), None, _FRICTION_NAMES)
+    stray = [q for q in cls.data_required if q not in inputs]
+    if stray:
+        raise ValueError(f"{name}.data_required: {stray} are not in data_inputs")
+    return SceneSpec(name, cls)
 
 
 def resolve_parameter(experiment: Experiment, name: str) -> str:

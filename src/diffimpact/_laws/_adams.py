@@ -11,7 +11,7 @@ from jaxtyping import Array
 from .._checks import as_float, nonnegative, positive
 from .._materials import ContactProperties
 from .._smooth import adams_step, safe_pow
-from ._base import AbstractBoundLaw, AbstractNormalLaw
+from ._base import AbstractNormalLaw, AbstractSpringBoundLaw
 
 
 class AdamsImpact(AbstractNormalLaw):
@@ -53,16 +53,12 @@ class AdamsImpact(AbstractNormalLaw):
         )
 
 
-class BoundAdamsImpact(AbstractBoundLaw):
+class BoundAdamsImpact(AbstractSpringBoundLaw):
     stiffness: Array
     exponent: Array
     max_damping: Array
     penetration: Array
-    hysteretic: ClassVar[bool] = False
     rate_dependent: ClassVar[bool] = True
-
-    def scale(self):
-        return self.stiffness, self.exponent
 
     def loading_force(self, d, v, phase: int):
         c = adams_step(d, 0.0, 0.0, self.penetration, self.max_damping)

@@ -24,6 +24,7 @@ from typing import ClassVar
 
 import equinox as eqx
 import jax.numpy as jnp
+from jaxtyping import Array
 
 from .._checks import AbstractValidated
 from .._materials import ContactProperties
@@ -79,6 +80,19 @@ class AbstractBoundLaw(eqx.Module):
     def unloading_exponent(self):
         """Exponent ``p`` of ``F = F_m ((d - d_r)/(d_m - d_r))^p`` in restitution."""
         return self.scale()[1]
+
+
+class AbstractSpringBoundLaw(AbstractBoundLaw):
+    """A bound law built on a spring ``K d^n`` (and whatever the law adds to it,
+    e.g. a damper): the spring sets the scales, and the law unloads along its
+    loading path (no hysteresis, no permanent deformation)."""
+
+    stiffness: eqx.AbstractVar[Array]
+    exponent: eqx.AbstractVar[Array]
+    hysteretic: ClassVar[bool] = False
+
+    def scale(self):
+        return self.stiffness, self.exponent
 
 
 class AbstractNormalLaw(AbstractValidated):

@@ -20,7 +20,7 @@ from jaxtyping import Array
 from .._checks import as_float, check, positive
 from .._materials import ContactProperties
 from .._smooth import safe_pow
-from ._base import AbstractBoundLaw, AbstractNormalLaw
+from ._base import AbstractNormalLaw, AbstractSpringBoundLaw
 
 
 class _AbstractDampedHertz(AbstractNormalLaw):
@@ -93,17 +93,13 @@ class Flores(_AbstractDampedHertz):
         return 1.6 * (1.0 - self.cor) / self.cor
 
 
-class BoundDampedHertz(AbstractBoundLaw):
+class BoundDampedHertz(AbstractSpringBoundLaw):
     """``F = max(0, K d^n (1 + D d_dot))`` for ``d > 0``."""
 
     stiffness: Array
     exponent: Array
     damping: Array
-    hysteretic: ClassVar[bool] = False
     rate_dependent: ClassVar[bool] = True
-
-    def scale(self):
-        return self.stiffness, self.exponent
 
     def loading_force(self, d, v, phase: int):
         # Clamp at zero: the law must never pull (docs/physics/contact.md).

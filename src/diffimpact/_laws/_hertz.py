@@ -10,7 +10,7 @@ from jaxtyping import Array
 from .._checks import as_float, positive
 from .._materials import ContactProperties
 from .._smooth import safe_pow
-from ._base import AbstractBoundLaw, AbstractNormalLaw
+from ._base import AbstractNormalLaw, AbstractSpringBoundLaw
 
 
 class Hertz(AbstractNormalLaw):
@@ -37,16 +37,12 @@ class Hertz(AbstractNormalLaw):
         return BoundPowerLaw(stiffness=k, exponent=self.exponent)
 
 
-class BoundPowerLaw(AbstractBoundLaw):
+class BoundPowerLaw(AbstractSpringBoundLaw):
     """``F = K d^n``: elastic, conservative, no history."""
 
     stiffness: Array
     exponent: Array
-    hysteretic: ClassVar[bool] = False
     rate_dependent: ClassVar[bool] = False
-
-    def scale(self):
-        return self.stiffness, self.exponent
 
     def loading_force(self, d, v, phase: int):
         return self.stiffness * safe_pow(d, self.exponent)

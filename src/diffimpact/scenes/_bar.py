@@ -9,6 +9,7 @@ modes).
 from __future__ import annotations
 
 import math
+from typing import ClassVar
 
 import equinox as eqx
 import jax.numpy as jnp
@@ -138,6 +139,9 @@ class FreeBar(AbstractRod, AbstractPlanarScene):
     of mass), `normal_velocity_contact_after` / `tangential_velocity_contact_after`
     (contact point).
     """
+
+    data_inputs: ClassVar = {"drop_height": "height", "angle": "angle", "mass": "mass"}
+    data_required: ClassVar = ("drop_height",)
 
     @property
     def impact_speed(self):

@@ -35,9 +35,12 @@ class AbstractScene(AbstractValidated):
     file sets which field, e.g. ``{"impact_velocity": "speed", "angle":
     "angle"}`` (quantities as in the CSV format: ``angle_deg`` is converted to
     ``angle`` in rad).  Empty: the scene has no data mapping.
+    `data_required`: the inputs every row of a file must give (the others
+    default to the template scene's values).
     """
 
     data_inputs: ClassVar[Mapping[str, str]] = {}
+    data_required: ClassVar[tuple[str, ...]] = ()
 
     @abc.abstractmethod
     def normal_problem(self) -> NormalProblem:

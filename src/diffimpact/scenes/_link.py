@@ -6,6 +6,8 @@ friction" (Math. Probl. Eng. 2020).
 
 from __future__ import annotations
 
+from typing import ClassVar
+
 import equinox as eqx
 import jax.numpy as jnp
 from jaxtyping import Array
@@ -94,6 +96,14 @@ class RotatingLink(AbstractPlanarScene):
     `normal_velocity_contact_after` / `tangential_velocity_contact_after`
     (contact point).
     """
+
+    data_inputs: ClassVar = {
+        "link_length": "length",
+        "angle": "impact_angle",
+        "release_angle": "release_angle",
+        "mass": "mass",
+    }
+    data_required: ClassVar = ("link_length",)
 
     mass: Array = eqx.field(converter=as_float)
     length: Array = eqx.field(converter=as_float)

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from typing import ClassVar
+
 import equinox as eqx
 import jax.numpy as jnp
 from jaxtyping import Array
@@ -22,6 +24,13 @@ class NormalImpact(AbstractScene):
     - `gravity`: acceleration pushing the body into the flat [m/s^2] (default 0:
       gravity neglected, as it is against contact forces of kN over microseconds).
     """
+
+    data_inputs: ClassVar = {
+        "impact_velocity": "velocity",
+        "mass": "mass",
+        "radius": "radius",
+    }
+    data_required: ClassVar = ("impact_velocity",)
 
     mass: Array = eqx.field(converter=as_float)
     radius: Array = eqx.field(converter=as_float)

@@ -78,6 +78,14 @@ class SphereOnIncline(AbstractPlanarScene):
     [m/s^2] (> 0, default 9.81).
     """
 
+    data_inputs: ClassVar = {
+        "drop_height": "height",
+        "angle": "angle",
+        "mass": "mass",
+        "radius": "radius",
+    }
+    data_required: ClassVar = ("drop_height", "angle")
+
     mass: Array = eqx.field(converter=as_float)
     radius: Array = eqx.field(converter=as_float)
     body: Material
