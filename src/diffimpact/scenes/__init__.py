@@ -3,6 +3,7 @@
 from ._bar import FreeBar as FreeBar
 from ._base import AbstractScene as AbstractScene
 from ._base import NormalProblem as NormalProblem
+from ._body import PlanarBody as PlanarBody
 from ._link import RotatingLink as RotatingLink
 from ._mechanisms import AbstractMechanism as AbstractMechanism
 from ._mechanisms import BouncingBar as BouncingBar
@@ -12,3 +13,7 @@ from ._normal import Collinear as Collinear
 from ._normal import NormalImpact as NormalImpact
 from ._planar import AbstractPlanarScene as AbstractPlanarScene
 from ._planar import SphereOnIncline as SphereOnIncline
+from ._shapes import AbstractShape as AbstractShape
+from ._shapes import Capsule as Capsule
+from ._shapes import Disk as Disk
+from ._shapes import Ellipse as Ellipse
