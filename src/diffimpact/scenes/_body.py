@@ -15,7 +15,7 @@ from ._shapes import AbstractShape
 
 class PlanarBody(AbstractPlanarScene):
     """A rigid body of convex `shape` striking a flat, started from its state
-    at first contact (docs/physics/scenes.md).
+    at first contact (S-11).
 
     **Frame.** The flat is the line ``y = 0`` through the body's lowest point
     at first contact; ``x`` runs along it, ``y`` away from it, angles and
