@@ -190,3 +190,52 @@ def test_the_same_error_under_jit():
 
     with pytest.raises(Exception, match="must approach the flat"):
         jax.jit(spin)(1.0).block_until_ready()
+
+
+@pytest.mark.parametrize(
+    "shape", [S.Disk(0.02), S.Ellipse(0.05, 0.02), S.Capsule(0.1, 0.005)]
+)
+def test_support_change_keeps_its_digits(shape):
+    """``h(u0 + du) - h(u0)``: for a turn of 1e-2 rad it is the plain
+    difference (cancellation costs ~1e-14 there); for 1e-7 rad it is the
+    envelope theorem's ``p(u0) . du`` to second order (1e-7 relative)."""
+    from diffimpact.scenes._shapes import down, down_change
+
+    for theta0 in (-0.5, 0.3, 2.0):
+        u0 = down(theta0)
+        for turn, rel in ((1e-2, 1e-11), (1e-7, 1e-6)):
+            du = down_change(theta0, turn)
+            change = float(shape.support_change(u0, du))
+            if turn > 1e-3:
+                h = [float(shape.support(u)[0] @ u) for u in (down(theta0 + turn), u0)]
+                expected = h[0] - h[1]
+            else:
+                expected = float(shape.support(u0)[0] @ du)
+            # abs: the rounding of a plain difference of ~0.1 m lengths, and
+            # the expansion's second-order term ~ size turn^2
+            slack = 1e-16 + 0.1 * turn**2 * (turn < 1e-3)
+            assert change == pytest.approx(expected, rel=rel, abs=slack)
+
+
+@pytest.mark.parametrize(
+    "vx, gravity, mu, stick",
+    [(0.0, 9.81, 1.0, "hold"), (0.3, 0.0, 0.5, "slope"), (0.3, 0.0, 1.0, "hold")],
+)
+def test_a_stuck_rod_solves(vx, gravity, mu, stick):
+    """A rod whose tip sticks: computed as a plain difference of lengths the
+    interference lost four digits and the solve failed (step size underflow)
+    in exactly these cases; without vx and gravity it is the free bar."""
+    m, length = 0.05, 0.21
+    rod = S.PlanarBody(
+        m, m * length**2 / 12, S.Capsule(0.1, 0.005), BAR, BAR, angle=-0.5,
+        velocity_x=vx, velocity_y=-1.0, gravity=gravity,
+    )  # fmt: skip
+    friction = di.Friction(mu, stick=stick)
+    r = di.simulate(rod, di.Hertz(), friction=friction)
+    if vx == 0.0 and gravity > 0:
+        bar = S.FreeBar(m, BAR, BAR, 1 / (2 * 9.81), length=length, angle=0.5)
+        ref = di.simulate(bar, di.Hertz(), friction=friction)
+        x = float(ref.extras["tangential_velocity_after"])
+        assert float(r.extras["velocity_x_after"]) == pytest.approx(x, rel=AGREE)
+    else:
+        assert np.isfinite(float(r.extras["velocity_x_after"]))

@@ -10,7 +10,7 @@ from .._checks import as_float, check, finite, positive
 from .._materials import Material, contact_properties
 from ._base import NormalProblem
 from ._planar import AbstractPlanarScene
-from ._shapes import AbstractShape
+from ._shapes import AbstractShape, down, down_change
 
 
 class PlanarBody(AbstractPlanarScene):
@@ -115,7 +115,7 @@ class PlanarBody(AbstractPlanarScene):
         """``(r, rho)``: the contact point from the centre of mass (world frame)
         and the boundary's radius of curvature there, at angle ``theta``."""
         c, s = jnp.cos(theta), jnp.sin(theta)
-        p, rho = self.shape.support(jnp.stack([-s, -c]))
+        p, rho = self.shape.support(down(theta))
         rel_x, rel_y = p[0] - self.com_x, p[1] - self.com_y
         return jnp.stack([c * rel_x - s * rel_y, s * rel_x + c * rel_y]), rho
 
@@ -133,9 +133,12 @@ class PlanarBody(AbstractPlanarScene):
 
     def kinematics(self, q):
         r, _ = self._lever(self.angle + q[2])
-        r0, _ = self._lever(self.angle)
+        # r_y = -(h(u) - c . u): the drop of the contact point as the body
+        # turns, without cancellation (`down_change`).
+        u0, du = down(self.angle), down_change(self.angle, q[2])
+        com = jnp.stack([self.com_x, self.com_y])
+        d = -q[1] + self.shape.support_change(u0, du) - com @ du
         one, zero = jnp.ones_like(r[0]), jnp.zeros_like(r[0])
-        d = -q[1] - (r[1] - r0[1])
         return d, jnp.stack([zero, -one, -r[0]]), jnp.stack([one, zero, -r[1]])
 
     def generalized_gravity(self):

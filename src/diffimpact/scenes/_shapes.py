@@ -20,6 +20,23 @@ from jaxtyping import Array
 from .._checks import AbstractValidated, as_float, positive
 
 
+def down(theta) -> Array:
+    """``u(theta) = (-sin(theta), -cos(theta))``: the direction into the flat,
+    seen in the frame of a body turned by ``theta``."""
+    return jnp.stack([-jnp.sin(theta), -jnp.cos(theta)])
+
+
+def down_change(theta0, turn) -> Array:
+    """``u(theta0 + turn) - u(theta0)`` without the cancellation of nearly
+    equal numbers: ``sin a - sin b = 2 cos((a+b)/2) sin((a-b)/2)`` and its
+    cosine twin.  An impact turns a body by ~1e-4 rad, and the interference
+    is a difference of lengths ~1e4 times larger than itself: computed
+    plainly it loses four digits, enough to stall a solve that holds a
+    stuck contact."""
+    half, mid = jnp.sin(0.5 * turn), theta0 + 0.5 * turn
+    return jnp.stack([-2.0 * jnp.cos(mid) * half, 2.0 * jnp.sin(mid) * half])
+
+
 class AbstractShape(AbstractValidated):
     """A convex planar shape in its body frame (lengths in m)."""
 
@@ -27,6 +44,11 @@ class AbstractShape(AbstractValidated):
     def support(self, u) -> tuple[Array, Array]:
         """``(p, rho)``: the boundary point ``p`` (shape ``(2,)``) farthest along
         the unit vector ``u``, and the radius of curvature ``rho`` there."""
+
+    @abc.abstractmethod
+    def support_change(self, u0, du) -> Array:
+        """``h(u0 + du) - h(u0)`` of the support function ``h(u) = p(u) . u``,
+        accurate relative to itself when ``du`` is small (`down_change`)."""
 
     @abc.abstractmethod
     def farthest(self, c) -> Array:
@@ -55,6 +77,9 @@ class Disk(AbstractShape):
     def support(self, u):
         return self.radius * u, self.radius
 
+    def support_change(self, u0, du):
+        return jnp.zeros_like(du[0])
+
     def farthest(self, c):
         return jnp.linalg.norm(c) + self.radius
 
@@ -75,6 +100,15 @@ class Ellipse(AbstractShape):
         a2, b2 = self.a**2, self.b**2
         h = jnp.sqrt(a2 * u[0] ** 2 + b2 * u[1] ** 2)
         return jnp.stack([a2 * u[0], b2 * u[1]]) / h, a2 * b2 / h**3
+
+    def support_change(self, u0, du):
+        # h^2 = b^2 + (a^2 - b^2) u_x^2 on the unit circle, so
+        # h1 - h0 = (a^2 - b^2) (u1x - u0x)(u1x + u0x) / (h1 + h0).
+        u1 = u0 + du
+        h0, h1 = (
+            jnp.sqrt(self.a**2 * v[0] ** 2 + self.b**2 * v[1] ** 2) for v in (u0, u1)
+        )
+        return (self.a**2 - self.b**2) * du[0] * (u1[0] + u0[0]) / (h0 + h1)
 
     def farthest(self, c):
         # Sampled boundary: an upper bound within 1e-4 relative is enough for a
@@ -103,6 +137,13 @@ class Capsule(AbstractShape):
         # rod lies flat (a line contact, outside this point-contact model).
         end = jnp.where(u[0] >= 0, self.half_length, -self.half_length)
         return jnp.stack([end + self.radius * u[0], self.radius * u[1]]), self.radius
+
+    def support_change(self, u0, du):
+        # h = l |u_x| + r: on one end cap the change is l sign(u_x) du_x.
+        u1x = u0[0] + du[0]
+        same = jnp.sign(u1x) == jnp.sign(u0[0])
+        plain = jnp.abs(u1x) - jnp.abs(u0[0])
+        return self.half_length * jnp.where(same, jnp.sign(u0[0]) * du[0], plain)
 
     def farthest(self, c):
         return jnp.hypot(self.half_length + jnp.abs(c[0]), c[1]) + self.radius
