@@ -1,7 +1,7 @@
 """Rigid-body impact laws: the baselines a compliant contact is compared with.
 
-Routh's method (Routh 1905; Stronge, *Impact Mechanics*, 2000, ch. 3-5;
-docs/physics/friction.md, R-3): the impact is instantaneous, and the contact
+Routh's method (Routh 1905; Stronge, *Impact Mechanics*, 2000; R-3): the impact
+is instantaneous, and the contact
 velocities evolve linearly in the normal impulse ``p``.  With the contact
 Jacobians ``J_n`` (into the flat), ``J_t`` and the mass matrix ``M`` of a
 `AbstractPlanarScene` at first contact,
