@@ -97,6 +97,13 @@ def positive(x, name: str, unit: str = "") -> Check:
     )
 
 
+def positive_fields(module, units: dict[str, str]) -> list[Check]:
+    """`positive` for each field of ``module`` named in ``units`` (field ->
+    unit), each check named ``Type.field``."""
+    owner = type(module).__name__
+    return [positive(getattr(module, f), f"{owner}.{f}", u) for f, u in units.items()]
+
+
 def nonnegative(x, name: str, unit: str = "") -> Check:
     return Check(
         x,

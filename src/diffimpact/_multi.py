@@ -68,9 +68,10 @@ from ._checks import (
     require_finite,
     require_scalars,
 )
+from ._flat import Flat, solve_result
 from ._laws._base import AbstractNormalLaw
 from ._laws._friction import Friction
-from ._result import RESULTS, finish, raise_if_failed
+from ._result import finish, raise_if_failed
 from ._solver import stored_steps_adjoint
 from ._span_field import _setup, _Span
 from ._span_impacts import _impacts_of_contact
@@ -155,13 +156,14 @@ def _simulate_span(scene, law, t_span, friction, settings, n_save, throw):
     if n_save > 0:
         subs.append(diffrax.SubSaveAt(ts=jnp.linspace(tau0, tau1, n_save)))
     dtmax = None if settings.dtmax is None else settings.dtmax / p.time
+    flat = Flat(y0)
     sol = diffrax.diffeqsolve(
-        diffrax.ODETerm(lambda tau, y, args: args.field(tau, y)),
+        diffrax.ODETerm(flat.field(lambda tau, y, args: args.field(tau, y))),
         settings.solver,
         t0=tau0,
         t1=tau1,
         dt0=None,
-        y0=y0,
+        y0=flat.flat,
         args=p,
         stepsize_controller=diffrax.PIDController(
             rtol=settings.rtol,
@@ -177,14 +179,8 @@ def _simulate_span(scene, law, t_span, friction, settings, n_save, throw):
         adjoint=stored_steps_adjoint(settings.adjoint, settings.max_steps),
         throw=False,
     )
-    r = sol.result
-    result = RESULTS.where(
-        r == diffrax.RESULTS.max_steps_reached,
-        RESULTS.max_steps_reached,
-        RESULTS.where(
-            r == diffrax.RESULTS.successful, RESULTS.successful, RESULTS.solver_failed
-        ),
-    )
+    result = solve_result(sol.result)
+    sol = eqx.tree_at(lambda s: s.ys, sol, [flat.saved(ys) for ys in sol.ys])
     e0 = p.kinetic(q0, q_dot0) + scene.potential(q0)
 
     # Every accepted step.

@@ -21,6 +21,7 @@ import jax.numpy as jnp
 import optimistix as optx
 
 from ._extrema import track_extrema
+from ._flat import Flat, solve_result
 from ._laws._base import AbstractBoundLaw
 from ._result import RESULTS, History, first_failure
 from ._root import newton_root
@@ -207,20 +208,22 @@ def _solve(
     event_tol = max(settings.event_tol, floor)
     norm = optx.rms_norm
     adjoint = stored_steps_adjoint(settings.adjoint, settings.max_steps)
+    flat = Flat(y0)
+    conds = jax.tree.map(lambda c: _default_float(flat.function(c)), conds)
     event = diffrax.Event(
-        cond_fn=jax.tree.map(_default_float, conds),
+        cond_fn=conds,
         root_finder=optx.Newton(rtol=event_tol, atol=event_tol),
         direction=directions,
     )
-    solver = track_extrema(settings.solver, *extrema)
+    solver = track_extrema(settings.solver, *map(flat.function, extrema))
     # Times in the state's dtype, so that a float32 impact stays float32.
     sol = diffrax.diffeqsolve(
-        diffrax.ODETerm(field),
+        diffrax.ODETerm(flat.field(field)),
         solver,
         t0=jnp.zeros((), dtype),
         t1=jnp.asarray(settings.max_time, dtype),
         dt0=None,
-        y0=y0,
+        y0=flat.flat,
         args=args,
         stepsize_controller=diffrax.PIDController(rtol=rtol, atol=atol, norm=norm),
         saveat=diffrax.SaveAt(
@@ -231,16 +234,9 @@ def _solve(
         adjoint=adjoint,
         throw=False,
     )
-    # diffrax's codes in our terms (its messages would not say which setting
-    # to change); the caller decides whether to raise (`throw`).
-    r = sol.result
-    ended = (r == diffrax.RESULTS.successful) | (r == diffrax.RESULTS.event_occurred)
-    result = RESULTS.where(
-        r == diffrax.RESULTS.max_steps_reached,
-        RESULTS.max_steps_reached,
-        RESULTS.where(ended, RESULTS.successful, RESULTS.solver_failed),
-    )
-    return sol, result
+    # States as the code names them; dense output through `flat.unravel`.
+    sol = eqx.tree_at(lambda s: s.ys, sol, flat.saved(sol.ys))
+    return sol, solve_result(sol.result), flat.unravel
 
 
 def _event_time(sol):
@@ -300,7 +296,7 @@ def _solve_smooth(problem, bound, settings, n_history):
         )
         return y.x - x_r
 
-    sol, solved = _solve(
+    sol, solved, unravel = _solve(
         _smooth_field,
         y0,
         (bound, sc, settings),
@@ -328,7 +324,7 @@ def _solve_smooth(problem, bound, settings, n_history):
         out["max_force"] = y.peak_force * sc.force
     if n_history > 0:
         taus = jnp.linspace(0.0, tau_end, n_history)
-        ys = jax.vmap(sol.evaluate)(taus)
+        ys = jax.vmap(lambda t: unravel(sol.evaluate(t)))(taus)
         d, v = ys.x * sc.length, ys.u * sc.speed
         d_m = ys.max_deflection * sc.length if bound.hysteretic else jnp.zeros_like(d)
         force = jax.vmap(
@@ -376,7 +372,7 @@ def _solve_events(problem, bound, settings):
         conds, dirs = (switch, stop), (False, False)
     else:
         conds, dirs = (stop,), (False,)
-    sol_a, solved_a = _solve(
+    sol_a, solved_a, _ = _solve(
         _phase_field, y0, (bound, sc, 0, none, none), settings, conds, dirs
     )
     t_a, stopped_a = _event_time(sol_a)
@@ -396,7 +392,7 @@ def _solve_events(problem, bound, settings):
             (1.01 * bound.switch_deflection() / sc.length, 0.1 * y0.u),
         )
         y0_b = _select(switched, y_a, dummy)
-        sol_b, solved_b = _solve(
+        sol_b, solved_b, _ = _solve(
             _phase_field, y0_b, (bound, sc, 1, none, none), settings, stop, False
         )
         t_b, stopped_b = _event_time(sol_b)
@@ -421,7 +417,7 @@ def _solve_events(problem, bound, settings):
         return y.x - x_r
 
     y0_c = eqx.tree_at(lambda y: y.u, y_load, jnp.zeros_like(y_load.u))
-    sol_c, solved_c = _solve(
+    sol_c, solved_c, _ = _solve(
         _phase_field, y0_c, (bound, sc, "unload", d_m, f_m), settings, separation, False
     )
     t_c, separated = _event_time(sol_c)

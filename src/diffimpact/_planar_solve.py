@@ -260,7 +260,7 @@ def solve_planar(scene, law, friction, settings):
         _peak_force if bound.rate_dependent else None,
         _slip_ratio if friction is not None else None,
     )
-    sol, solved = _solve(
+    sol, solved, _ = _solve(
         _planar_field,
         y0,
         p,

@@ -17,7 +17,7 @@ from jaxtyping import Array
 
 from .._checks import AbstractValidated, as_float, check, positive, require
 from .._materials import Material, contact_properties
-from ._base import NormalProblem, rod_inertia
+from ._base import rod_inertia
 from ._link import optional_float
 from ._planar import AbstractPlanarScene
 
@@ -180,22 +180,6 @@ class FreeBar(AbstractRod, AbstractPlanarScene):
 
     def contact(self):
         return contact_properties(self.body, self.flat, self.radius)
-
-    def normal_problem(self):
-        """The normal problem at first contact: effective mass
-        ``1 / (J_n M^-1 J_n^T) = 1 / (1/m + l^2 cos^2(theta) / I)``, approach
-        speed ``v'``, gravity's normal acceleration ``J_n M^-1 Q = g``.
-        Informative only: the normal motion couples to the rotation, so
-        `simulate` always solves the bar as a planar scene."""
-        q0, q_dot0 = self.initial_state()
-        _, j_n, _ = self.kinematics(q0)
-        inv_mass = 1.0 / self.mass_diagonal()
-        return NormalProblem(
-            mass=1.0 / jnp.sum(j_n**2 * inv_mass),
-            contact=self.contact(),
-            velocity=j_n @ q_dot0,
-            gravity=jnp.sum(j_n * inv_mass * self.generalized_gravity()),
-        )
 
     def report(self, q, q_dot):
         _, j_n, j_t = self.kinematics(q)

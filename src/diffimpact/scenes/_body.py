@@ -6,9 +6,8 @@ import equinox as eqx
 import jax.numpy as jnp
 from jaxtyping import Array
 
-from .._checks import as_float, check, finite, positive
+from .._checks import as_float, check, finite, positive_fields
 from .._materials import Material, contact_properties
-from ._base import NormalProblem
 from ._planar import AbstractPlanarScene
 from ._shapes import AbstractShape, down, down_change
 
@@ -72,8 +71,7 @@ class PlanarBody(AbstractPlanarScene):
         reach = self.shape.farthest(com)
         incline = self.incline
         return [
-            positive(self.mass, "PlanarBody.mass", "kg"),
-            positive(self.inertia, "PlanarBody.inertia", "kg m^2"),
+            *positive_fields(self, {"mass": "kg", "inertia": "kg m^2"}),
             check(
                 com,
                 self.shape.contains(com),
@@ -149,20 +147,6 @@ class PlanarBody(AbstractPlanarScene):
 
     def contact(self):
         return contact_properties(self.body, self.flat, self._lever(self.angle)[1])
-
-    def normal_problem(self):
-        """Effective mass ``1 / (J_n M^-1 J_n^T)`` at first contact, approach
-        speed ``J_n q_dot``, gravity's normal acceleration ``-J_n M^-1 Q``
-        (toward the flat); informative: the solve is planar."""
-        q0, q_dot0 = self.initial_state()
-        _, j_n, _ = self.kinematics(q0)
-        inv_mass = 1.0 / self.mass_diagonal()
-        return NormalProblem(
-            mass=1.0 / jnp.sum(j_n**2 * inv_mass),
-            contact=self.contact(),
-            velocity=j_n @ q_dot0,
-            gravity=jnp.sum(j_n * inv_mass * self.generalized_gravity()),
-        )
 
     def report(self, q, q_dot):
         d, j_n, j_t = self.kinematics(q)

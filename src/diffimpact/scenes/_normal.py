@@ -8,7 +8,7 @@ import equinox as eqx
 import jax.numpy as jnp
 from jaxtyping import Array
 
-from .._checks import as_float, check, finite, positive
+from .._checks import as_float, check, finite, positive_fields
 from .._materials import Material, contact_properties
 from ._base import AbstractScene, NormalProblem
 
@@ -25,11 +25,9 @@ class NormalImpact(AbstractScene):
       gravity neglected, as it is against contact forces of kN over microseconds).
     """
 
-    data_inputs: ClassVar = {
-        "impact_velocity": "velocity",
-        "mass": "mass",
-        "radius": "radius",
-    }
+    data_inputs: ClassVar = dict(
+        impact_velocity="velocity", mass="mass", radius="radius"
+    )
     data_required: ClassVar = ("impact_velocity",)
 
     mass: Array = eqx.field(converter=as_float)
@@ -41,8 +39,7 @@ class NormalImpact(AbstractScene):
 
     def _checks(self):
         return [
-            positive(self.mass, "NormalImpact.mass", "kg"),
-            positive(self.radius, "NormalImpact.radius", "m"),
+            *positive_fields(self, {"mass": "kg", "radius": "m"}),
             _approach(self.velocity, "NormalImpact.velocity"),
             finite(self.gravity, "NormalImpact.gravity"),
         ]
@@ -82,14 +79,12 @@ class Collinear(AbstractScene):
 
     def _checks(self):
         return [
-            positive(self.mass1, "Collinear.mass1", "kg"),
-            positive(self.mass2, "Collinear.mass2", "kg"),
+            *positive_fields(self, {"mass1": "kg", "mass2": "kg", "radius1": "m"}),
             finite(self.velocity1, "Collinear.velocity1"),
             finite(self.velocity2, "Collinear.velocity2"),
             _approach(
                 self.velocity1 - self.velocity2, "Collinear.velocity1 - velocity2"
             ),
-            positive(self.radius1, "Collinear.radius1", "m"),
             check(
                 self.radius2,
                 self.radius2 > 0,

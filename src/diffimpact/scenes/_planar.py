@@ -61,6 +61,22 @@ class AbstractPlanarScene(AbstractScene):
         """What an experimenter measures, from the state after separation."""
         return {}
 
+    def normal_problem(self) -> NormalProblem:
+        """The normal problem at first contact: effective mass
+        ``1 / (J_n M^-1 J_n^T)``, approach speed ``J_n q_dot``, gravity's
+        acceleration into the flat ``J_n M^-1 Q``.  Where the normal motion
+        couples to the others (a bar, a link) it is informative only: such a
+        scene is always solved as a planar scene."""
+        q0, q_dot0 = self.initial_state()
+        _, j_n, _ = self.kinematics(q0)
+        inv_mass = 1.0 / self.mass_diagonal()
+        return NormalProblem(
+            mass=1.0 / jnp.sum(j_n**2 * inv_mass),
+            contact=self.contact(),
+            velocity=j_n @ q_dot0,
+            gravity=jnp.sum(j_n * inv_mass * self.generalized_gravity()),
+        )
+
 
 class SphereOnIncline(AbstractPlanarScene):
     """A ball dropped vertically from height ``h`` onto a plane tilted ``phi``
