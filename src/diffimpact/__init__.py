@@ -54,6 +54,7 @@ from ._result import SolverError as SolverError
 from ._result import StepBudgetError as StepBudgetError
 from ._result import result_name as result_name
 from ._rigid import RESTITUTION_LAWS as RESTITUTION_LAWS
+from ._rigid import RigidContact as RigidContact
 from ._rigid import rigid_impact as rigid_impact
 from ._simulate import simulate as simulate
 from ._solver import SolverSettings as SolverSettings

@@ -85,10 +85,16 @@ release_angle         | angle            | input  | >= 0 | release angle of a li
 link_length           | length           | input  | >= 0 | length of a rotating link
 mass                  | mass             | input  | >= 0 | mass of the moving body
 radius                | length           | input  | >= 0 | radius of the sphere or tip
+orientation           | angle            | input  | any  | a planar body's angle at first contact (counter-clockwise)
+velocity_x            | velocity         | input  | any  | centre-of-mass velocity along the flat at first contact
+velocity_y            | velocity         | input  | any  | centre-of-mass velocity normal to the flat at first contact (< 0: falling)
+angular_velocity_before | angular_velocity | input | any | angular velocity at first contact (counter-clockwise)
 contact_time          | time             | output | >= 0 | first contact to separation
 rebound_velocity      | velocity         | output | >= 0 | normal rebound speed of the contact point
 tangential_velocity   | velocity         | output | any  | tangential velocity of the centre of mass after the impact
 angular_velocity      | angular_velocity | output | any  | spin after
+velocity_x_after      | velocity         | output | any  | centre-of-mass velocity along the flat after the impact
+velocity_y_after      | velocity         | output | any  | centre-of-mass velocity normal to the flat after the impact
 cor_normal            | dimensionless    | output | >= 0 | Newton's COR e_n | max 1
 cor_tangential        | dimensionless    | output | any  | tangential COR e_t of the centre of mass
 max_force             | force            | output | >= 0 | peak normal contact force

@@ -25,6 +25,7 @@ from ._laws._base import AbstractNormalLaw
 from ._laws._friction import Friction
 from ._laws._jackson_green import JacksonGreen
 from ._materials import Material
+from ._rigid import RigidContact
 from ._simulate import simulate
 from ._solver import SolverSettings
 from .scenes._bar import FreeBar
@@ -43,7 +44,7 @@ class Experiment(eqx.Module):
     """
 
     scene: AbstractScene
-    law: AbstractNormalLaw
+    law: AbstractNormalLaw | RigidContact
     friction: Friction | None = None
     method: str = eqx.field(static=True, default="auto")
     settings: SolverSettings = eqx.field(
@@ -423,6 +424,8 @@ def predict(
     velocity after over before.  (`_guarded`: as in `simulate`.)
     """
     e = with_inputs(experiment, inputs or {})
+    if isinstance(e.law, RigidContact):
+        return _predict_rigid(e, throw)
     r = simulate(
         e.scene,
         e.law,
@@ -440,6 +443,9 @@ def predict(
         "max_deflection": r.max_deflection,
         "permanent_deformation": r.permanent_deformation,
     }
+    for key in ("velocity_x_after", "velocity_y_after"):
+        if key in r.extras:
+            out[key] = r.extras[key]
     if "tangential_velocity_after" in r.extras:
         out["tangential_velocity"] = r.extras["tangential_velocity_after"]
     if "angular_velocity_after" in r.extras:
@@ -451,4 +457,21 @@ def predict(
         )
     if not throw:
         out["result"] = r.result
+    return out
+
+
+def _predict_rigid(e: Experiment, throw: bool) -> dict:
+    """What a rigid contact predicts: velocities after, no durations or
+    deformations (they are not defined for a rigid impact)."""
+    o = e.law.impact(e.scene, e.friction, throw=throw)
+    out = {"cor_normal": o["cor_newton"]}
+    for key in ("velocity_x_after", "velocity_y_after"):
+        if key in o:
+            out[key] = o[key]
+    if "tangential_velocity_after" in o:
+        out["tangential_velocity"] = o["tangential_velocity_after"]
+    if "angular_velocity_after" in o:
+        out["angular_velocity"] = o["angular_velocity_after"]
+    if not throw:
+        out["result"] = o["result"]
     return out

@@ -32,13 +32,58 @@ vmaps.  Gravity is neglected (an impulsive impact).
 
 from __future__ import annotations
 
+import equinox as eqx
 import jax.numpy as jnp
+from jaxtyping import Array
 
-from ._checks import as_float, check, guard, is_traced, nonnegative, require_scalars
+from ._checks import (
+    AbstractValidated,
+    as_float,
+    check,
+    guard,
+    is_traced,
+    nonnegative,
+    require_scalars,
+)
 from ._result import RESULTS, finish, raise_if_failed
 from .scenes._planar import AbstractPlanarScene
 
 RESTITUTION_LAWS = ("newton", "poisson", "energetic")
+
+
+class RigidContact(AbstractValidated):
+    """A rigid contact, for an `Experiment`: the impact is `rigid_impact`
+    with coefficient of restitution `cor` (in [0, 1], a differentiable field
+    that `fit` can fit by the name ``cor``) and the restitution law
+    `restitution` (static: ``"newton"``, ``"poisson"`` or ``"energetic"``).
+    Friction is the experiment's `Friction(mu)`, Coulomb's coefficient only.
+    Put in an `Experiment` in place of a normal law, it is the rigid
+    baseline fitted to the same file as a compliant model."""
+
+    cor: Array = eqx.field(converter=as_float)
+    restitution: str = eqx.field(static=True, default="newton")
+
+    def _checks(self):
+        if self.restitution not in RESTITUTION_LAWS:
+            raise ValueError(
+                f"RigidContact.restitution={self.restitution!r}: expected one of "
+                f"{RESTITUTION_LAWS}"
+            )
+        cor = self.cor
+        ok = jnp.isfinite(cor) & (cor >= 0) & (cor <= 1)
+        return [check(cor, ok, "`RigidContact.cor` must lie in [0, 1]")]
+
+    def impact(self, scene, friction, *, throw: bool = True) -> dict:
+        """`rigid_impact` of ``scene`` with this contact and ``friction``."""
+        if friction is not None and (
+            friction.mu_v is not None or friction.mu_s is not None or friction.compliant
+        ):
+            raise ValueError(
+                "a RigidContact takes Coulomb friction only: Friction(mu), without "
+                "mu_v, mu_s or compliant"
+            )
+        mu = 0.0 if friction is None else friction.mu
+        return rigid_impact(scene, mu, self.cor, self.restitution, throw=throw)
 
 
 def _safe_div(num, den):

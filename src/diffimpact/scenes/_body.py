@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from typing import ClassVar
+
 import equinox as eqx
 import jax.numpy as jnp
 from jaxtyping import Array
@@ -46,11 +48,25 @@ class PlanarBody(AbstractPlanarScene):
     [m]: the centre of mass in the shape's frame (default its origin);
     `incline` [rad] in [0, pi/2) (default 0); `gravity` [m/s^2] (default 9.81).
 
+    In an experiment file (docs: Data formats) the columns ``orientation``,
+    ``velocity_x``, ``velocity_y`` (and optionally ``angular_velocity_before``,
+    ``mass``) set the state row by row; the measured ``velocity_x_after``,
+    ``velocity_y_after`` and ``angular_velocity`` are predicted.
+
     ``result.extras``: `velocity_x_after`, `velocity_y_after` (centre of mass;
     also as `tangential_velocity_after`, `normal_velocity_after`),
     `angular_velocity_after`, `angle_after`, and the contact point's
     `normal_velocity_contact_after`, `tangential_velocity_contact_after`.
     """
+
+    data_inputs: ClassVar = {
+        "orientation": "angle",
+        "velocity_x": "velocity_x",
+        "velocity_y": "velocity_y",
+        "angular_velocity_before": "angular_velocity",
+        "mass": "mass",
+    }
+    data_required: ClassVar = ("orientation", "velocity_x", "velocity_y")
 
     mass: Array = eqx.field(converter=as_float)
     inertia: Array = eqx.field(converter=as_float)
