@@ -239,3 +239,33 @@ def test_a_stuck_rod_solves(vx, gravity, mu, stick):
         assert float(r.extras["velocity_x_after"]) == pytest.approx(x, rel=AGREE)
     else:
         assert np.isfinite(float(r.extras["velocity_x_after"]))
+
+
+def test_a_triangle_on_its_corner_does_not_spin():
+    """A rounded equilateral triangle dropped with a corner straight below its
+    centre: no spin, and the normal impact is the 1-DOF one of the mass with
+    the corner's radius (its support point is that corner, rounded)."""
+    rho, r, m = 0.05, 0.004, 0.2
+    corners = [
+        (rho * math.cos(a), rho * math.sin(a)) for a in np.radians([-90, 30, 150])
+    ]
+    body = S.PlanarBody(
+        m, 1e-4, S.RoundedPolygon(corners, r), BAR, FLAT, angle=0.0,
+        velocity_x=0.0, velocity_y=-1.5, gravity=0.0,
+    )  # fmt: skip
+    out = di.simulate(body, di.Hertz(), friction=di.Friction(0.3))
+    assert abs(float(out.extras["angular_velocity_after"])) < 1e-9
+    ref = di.simulate(S.NormalImpact(m, r, BAR, FLAT, 1.5), di.Hertz(), "smooth")
+    assert float(out.contact_time) == pytest.approx(float(ref.contact_time), rel=1e-9)
+    # Turned by 10 deg, the same corner touches off-centre: the body spins.
+    turned = dataclasses.replace(body, angle=math.radians(10.0))
+    spin = di.simulate(turned, di.Hertz()).extras["angular_velocity_after"]
+    assert abs(float(spin)) > 1.0
+
+
+def test_a_polygon_that_is_not_convex_is_named():
+    dent = [(0.0, 0.0), (0.1, 0.0), (0.05, 0.01), (0.1, 0.1), (0.0, 0.1)]
+    with pytest.raises(ValueError, match="strictly convex"):
+        S.RoundedPolygon(dent, 0.002)
+    with pytest.raises(ValueError, match="RoundedPolygon.radius"):
+        S.RoundedPolygon([(0.0, 0.0), (0.1, 0.0), (0.0, 0.1)], 0.0)

@@ -17,3 +17,4 @@ from ._shapes import AbstractShape as AbstractShape
 from ._shapes import Capsule as Capsule
 from ._shapes import Disk as Disk
 from ._shapes import Ellipse as Ellipse
+from ._shapes import RoundedPolygon as RoundedPolygon

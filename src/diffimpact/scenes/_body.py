@@ -42,7 +42,7 @@ class PlanarBody(AbstractPlanarScene):
     contact point.
 
     **Arguments:** `mass` [kg]; `inertia` [kg m^2] about the centre of mass;
-    `shape` (`Disk`, `Ellipse`, `Capsule`); `body`, `flat` (materials);
+    `shape` (`Disk`, `Ellipse`, `Capsule`, `RoundedPolygon`); `body`, `flat` (materials);
     `angle` [rad]; `velocity_x`, `velocity_y` [m/s] of the centre of mass
     (``velocity_y < 0`` falls); `angular_velocity` [rad/s]; `com_x`, `com_y`
     [m]: the centre of mass in the shape's frame (default its origin);

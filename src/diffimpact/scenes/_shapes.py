@@ -17,7 +17,7 @@ import jax
 import jax.numpy as jnp
 from jaxtyping import Array
 
-from .._checks import AbstractValidated, as_float, positive
+from .._checks import AbstractValidated, as_float, check, positive
 
 
 def down(theta) -> Array:
@@ -147,3 +147,57 @@ class Capsule(AbstractShape):
 
     def farthest(self, c):
         return jnp.hypot(self.half_length + jnp.abs(c[0]), c[1]) + self.radius
+
+
+def _vertex_pairs(vertices):
+    """``[(x, y), ...]`` (or a ``(k, 2)`` array) as a tuple of scalar pairs: one
+    pytree leaf per coordinate, so that a polygon vmaps like any scene."""
+    return tuple((as_float(x), as_float(y)) for x, y in vertices)
+
+
+class RoundedPolygon(AbstractShape):
+    """A convex polygon with rounded corners: the points within ``radius`` [m]
+    of the polygon with `vertices` ``[(x, y), ...]`` [m] in the body frame
+    (in order around it, either way round; at least three, strictly convex).
+    It touches the flat with a corner, whose radius of curvature is
+    ``radius`` (> 0)."""
+
+    vertices: tuple = eqx.field(converter=_vertex_pairs)
+    radius: Array = eqx.field(converter=as_float)
+
+    def _points(self):
+        return jnp.stack([jnp.stack(v) for v in self.vertices])
+
+    def _checks(self):
+        pts = self._points()
+        edges = jnp.roll(pts, -1, axis=0) - pts
+        turns = (
+            edges[:, 0] * jnp.roll(edges, -1, axis=0)[:, 1]
+            - edges[:, 1] * jnp.roll(edges, -1, axis=0)[:, 0]
+        )
+        convex = jnp.all(turns > 0) | jnp.all(turns < 0)
+        return [
+            check(
+                pts,
+                (len(self.vertices) >= 3) & convex & jnp.all(jnp.isfinite(pts)),
+                "`RoundedPolygon.vertices` must be at least three finite points "
+                "in order around a strictly convex polygon",
+            ),
+            positive(self.radius, "RoundedPolygon.radius", "m"),
+        ]
+
+    def _corner(self, u):
+        pts = self._points()
+        return pts[jnp.argmax(pts @ u)]
+
+    def support(self, u):
+        return self._corner(u) + self.radius * u, self.radius
+
+    def support_change(self, u0, du):
+        # h(u) = max_k v_k . u + r: on one corner the change is v_k . du.
+        corner0, corner1 = self._corner(u0), self._corner(u0 + du)
+        same = jnp.all(corner0 == corner1)
+        return jnp.where(same, corner0 @ du, corner1 @ (u0 + du) - corner0 @ u0)
+
+    def farthest(self, c):
+        return jnp.max(jnp.linalg.norm(self._points() - c, axis=1)) + self.radius
