@@ -42,8 +42,8 @@ class PlanarBody(AbstractPlanarScene):
     contact point.
 
     **Arguments:** `mass` [kg]; `inertia` [kg m^2] about the centre of mass;
-    `shape` (`Disk`, `Ellipse`, `Capsule`, `RoundedPolygon`); `body`, `flat` (materials);
-    `angle` [rad]; `velocity_x`, `velocity_y` [m/s] of the centre of mass
+    `shape` (`Disk`, `Ellipse`, `Capsule`, `RoundedPolygon`); `body`, `flat`
+    (materials); `angle` [rad]; `velocity_x`, `velocity_y` [m/s] of the centre of mass
     (``velocity_y < 0`` falls); `angular_velocity` [rad/s]; `com_x`, `com_y`
     [m]: the centre of mass in the shape's frame (default its origin);
     `incline` [rad] in [0, pi/2) (default 0); `gravity` [m/s^2] (default 9.81).
