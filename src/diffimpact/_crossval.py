@@ -1,0 +1,167 @@
+"""Cross-validation: fit models on part of a file, judge them on the rest.
+
+A model that explains the rows it was fitted to may still fail on impacts it
+has not seen; comparing models (a compliant contact against the rigid
+baselines, one contact law against another) by their error on held-out rows
+is the fair comparison.  `cross_validate` draws the held-out rows once (seeded),
+fits every model to the others with `diffimpact.fit`, and predicts the
+held-out rows with each fitted model.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+
+import jax
+import numpy as np
+
+from ._data import ExperimentData, load_experiments
+from ._fit import FitResult, fit
+from ._observables import Experiment, predict
+
+
+@dataclasses.dataclass(frozen=True)
+class CrossValidation:
+    """What `cross_validate` found.
+
+    - `models`: the model names; `quantities`: the measured outputs compared;
+    - `train_lines`, `test_lines`: the file lines fitted and held out;
+    - `fits`: model -> its `FitResult` on the training rows;
+    - `measured`: held-out measurements, shape ``(n_test, k)`` (NaN: not
+      measured); `predicted`: model -> predictions of the same shape (NaN
+      where the model's solve failed);
+    - `rms`: model -> root-mean-square held-out error per quantity, shape
+      ``(k,)``, in SI units; `failed`: model -> held-out rows whose solve
+      failed.
+    """
+
+    models: tuple[str, ...]
+    quantities: tuple[str, ...]
+    train_lines: np.ndarray
+    test_lines: np.ndarray
+    fits: dict[str, FitResult]
+    measured: np.ndarray
+    predicted: dict[str, np.ndarray]
+    rms: dict[str, np.ndarray]
+    failed: dict[str, int]
+
+    def table(self) -> str:
+        """Held-out RMS error of each quantity, one row per model."""
+        w = max(len(m) for m in self.models)
+        head = f"{'model':<{w}}  " + "  ".join(f"{q:>22}" for q in self.quantities)
+        rows = [head]
+        for m in self.models:
+            cells = "  ".join(f"{x:>22.4g}" for x in self.rms[m])
+            note = f"  ({self.failed[m]} failed)" if self.failed[m] else ""
+            rows.append(f"{m:<{w}}  {cells}{note}")
+        return "\n".join(rows)
+
+    def plot(self, path=None):
+        """Predicted against measured on the held-out rows, one panel per
+        quantity, one marker per model; saved to ``path`` if given."""
+        import matplotlib.pyplot as plt
+
+        k = len(self.quantities)
+        fig, axes = plt.subplots(1, k, figsize=(4.2 * k, 4), squeeze=False)
+        for j, (ax, q) in enumerate(zip(axes[0], self.quantities, strict=True)):
+            x = self.measured[:, j]
+            for m in self.models:
+                ax.plot(x, self.predicted[m][:, j], "o", ms=4, label=m, alpha=0.8)
+            lo, hi = np.nanmin(x), np.nanmax(x)
+            ax.plot([lo, hi], [lo, hi], "k-", lw=0.8)
+            ax.set_xlabel(f"measured {q} (SI)")
+            ax.set_ylabel("predicted")
+        axes[0][0].legend(fontsize=8)
+        fig.tight_layout()
+        if path is not None:
+            fig.savefig(path, dpi=120)
+        return fig
+
+
+def _rows(data: ExperimentData, index: np.ndarray) -> ExperimentData:
+    pick = {k: v[index] for k, v in data.inputs.items()}
+    return dataclasses.replace(
+        data,
+        inputs=pick,
+        outputs={k: v[index] for k, v in data.outputs.items()},
+        sigmas={k: v[index] for k, v in data.sigmas.items()},
+        lines=None if data.lines is None else data.lines[index],
+    )
+
+
+def cross_validate(
+    data,
+    models: dict[str, Experiment],
+    free,
+    *,
+    holdout: float = 0.25,
+    seed: int = 0,
+    outputs=None,
+    **fit_options,
+) -> CrossValidation:
+    """Fit each model on a random part of ``data`` and predict the rest.
+
+    **Arguments:** `data`: an experiment CSV path or `ExperimentData`;
+    `models`: name -> `Experiment` (its parameters are the start values);
+    `free`: the names to fit, one list for every model or name -> list;
+    `holdout`: fraction of the rows held out, in (0, 1) (at least one row
+    each side); `seed`: the draw; `outputs`: the measured quantities to fit
+    and compare (default: every one in the file that every model predicts);
+    `fit_options`: passed to `diffimpact.fit`.
+
+    **Returns** a `CrossValidation` (``.table()``, ``.plot()``).
+    """
+    if not 0.0 < holdout < 1.0:
+        raise ValueError(f"holdout={holdout!r}: expected a fraction in (0, 1)")
+    if not models:
+        raise ValueError("`models` must name at least one Experiment")
+    if not isinstance(data, ExperimentData):
+        data = load_experiments(data)
+    n = data.n
+    n_test = int(round(holdout * n))
+    if n_test < 1 or n_test > n - 1:
+        raise ValueError(
+            f"{data.path}: holdout={holdout} of {n} rows leaves no row to "
+            "fit or none to test; use more rows or another fraction"
+        )
+    order = np.random.default_rng(seed).permutation(n)
+    test, train = np.sort(order[:n_test]), np.sort(order[n_test:])
+    free_of = free if isinstance(free, dict) else dict.fromkeys(models, free)
+    train_data, test_data = _rows(data, train), _rows(data, test)
+    fits = {
+        name: fit(train_data, e, free_of[name], outputs=outputs, **fit_options)
+        for name, e in models.items()
+    }
+    if outputs is None:
+        shared = set.intersection(*(set(f.quantities) for f in fits.values()))
+        quantities = tuple(q for q in fits[next(iter(fits))].quantities if q in shared)
+    else:
+        quantities = tuple(outputs)
+    measured = np.stack([test_data.outputs[q] for q in quantities], axis=1)
+
+    def held_out(experiment):
+        def one(row):
+            out = predict(experiment, row, throw=False)
+            return [out[q] for q in quantities]
+
+        pred = jax.jit(jax.vmap(one))(test_data.inputs)
+        return np.stack([np.asarray(p) for p in pred], axis=1)
+
+    predicted = {name: held_out(f.experiment) for name, f in fits.items()}
+    rms, failed = {}, {}
+    for name, p in predicted.items():
+        err = p - measured
+        rms[name] = np.sqrt(np.nanmean(err**2, axis=0))
+        failed[name] = int(np.sum(np.any(np.isnan(p), axis=1)))
+    lines = data.lines if data.lines is not None else np.arange(1, n + 1)
+    return CrossValidation(
+        tuple(models),
+        quantities,
+        lines[train],
+        lines[test],
+        fits,
+        measured,
+        predicted,
+        rms,
+        failed,
+    )
