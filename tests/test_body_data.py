@@ -62,6 +62,7 @@ def test_rigid_baseline_recovers_its_own_data(tmp_path):
     assert fit.cost < 1e-15 and other.cost > 0.01
 
 
+# --8<-- [start:cross-validate]
 def test_compliant_data_is_fitted_and_beats_the_rigid_laws(tmp_path):
     """Data from Jackson-Green contact with friction (yield 400 MPa, mu
     0.25), 16 drops, 4 held out: the compliant model, fitted on the other
@@ -86,6 +87,9 @@ def test_compliant_data_is_fitted_and_beats_the_rigid_laws(tmp_path):
     assert "compliant" in cv.table()
     cv.plot(tmp_path / "cv.png")
     assert (tmp_path / "cv.png").stat().st_size > 10_000
+
+
+# --8<-- [end:cross-validate]
 
 
 def test_a_row_that_does_not_approach_is_named(tmp_path):
