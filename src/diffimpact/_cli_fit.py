@@ -12,12 +12,14 @@ overwritten without ``--force``; the check happens before the fit starts.
 
 from __future__ import annotations
 
+import csv
 import json
 import os
 
 from ._cli_files import open_new
 
 _OUTPUT_FILES = ("fit.json", "residuals.csv", "fit.png", "loop.png")
+_HOLDOUT_FILES = ("holdout.csv", "holdout.png")
 _LAWS = {"jackson-green": "JacksonGreen", "hertz": "Hertz"}
 
 
@@ -77,6 +79,20 @@ def register(sub) -> None:
     p.add_argument(
         "--max-steps", type=int, default=100, help="most optimiser steps (default 100)"
     )
+    p.add_argument(
+        "--holdout",
+        type=float,
+        default=None,
+        metavar="FRACTION",
+        help="hold out this fraction of the rows, fit on the rest, and compare "
+        "the held-out errors of the model and of the rigid laws",
+    )
+    p.add_argument(
+        "--seed",
+        type=int,
+        default=None,
+        help="draw of the held-out rows (with --holdout; default 0)",
+    )
     p.add_argument("--out", default=None, help="output folder (default fit-<data>)")
     p.add_argument("--force", action="store_true", help="overwrite outputs in --out")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
@@ -109,7 +125,12 @@ def run(args) -> int:
         )
     if args.max_steps < 1:
         raise ValueError(f"--max-steps must be an integer >= 1, got {args.max_steps}")
-    existing = [f for f in _OUTPUT_FILES if os.path.exists(os.path.join(out, f))]
+    if args.seed is not None and args.holdout is None:
+        raise ValueError("--seed draws the held-out rows: give it with --holdout")
+    if args.holdout is not None and not 0.0 < args.holdout < 1.0:
+        raise ValueError(f"--holdout must be a fraction in (0, 1), got {args.holdout}")
+    files = _OUTPUT_FILES + (_HOLDOUT_FILES if args.holdout is not None else ())
+    existing = [f for f in files if os.path.exists(os.path.join(out, f))]
     if existing and not args.force:
         raise ValueError(
             f"{out}: would overwrite {', '.join(existing)}; pass --force or choose "
@@ -173,17 +194,22 @@ def _fit_and_write(args, out) -> int:
         if not sep:
             raise ValueError(f"--bounds expects NAME=LO:HI, got {k}={v}")
         bounds[k] = (_number(lo, "bounds"), _number(hi, "bounds"))
-    print(f"fitting {args.free} to {data.n} rows of {args.data} ({scene})")
-    result = di.fit(
-        data,
-        experiment,
-        args.free,
-        start=start,
-        bounds=bounds,
-        solver=args.solver,
-        max_steps=args.max_steps,
-        progress=not args.no_progress,
-    )
+    options = dict(solver=args.solver, max_steps=args.max_steps)
+    if args.holdout is not None:
+        result = _cross_validate(
+            args, data, experiment, free, dict(start=start, bounds=bounds), out
+        )
+    else:
+        print(f"fitting {args.free} to {data.n} rows of {args.data} ({scene})")
+        result = di.fit(
+            data,
+            experiment,
+            args.free,
+            start=start,
+            bounds=bounds,
+            progress=not args.no_progress,
+            **options,
+        )
     print(result.summary())
     with open_new(os.path.join(out, "fit.json"), args.force) as fh:
         json.dump(
@@ -195,8 +221,57 @@ def _fit_and_write(args, out) -> int:
     write_residuals(result, os.path.join(out, "residuals.csv"), args.force)
     plot_fit(result, os.path.join(out, "fit.png"), args.force)
     note = plot_loop(result, os.path.join(out, "loop.png"), args.force)
-    print(f"wrote {out}/: {', '.join(_OUTPUT_FILES)}" + (f" ({note})" if note else ""))
+    files = _OUTPUT_FILES + (_HOLDOUT_FILES if args.holdout is not None else ())
+    print(f"wrote {out}/: {', '.join(files)}" + (f" ({note})" if note else ""))
     return 0
+
+
+def _cross_validate(args, data, experiment, free, own_options, out):
+    """``--holdout``: the model and, for a planar scene with Coulomb friction,
+    the three rigid laws (`RigidContact`, fitting ``mu`` where the model
+    does, and ``cor``), fitted on the same rows and judged on the rest.
+    Returns the model's own fit (on the training rows)."""
+    import diffimpact as di
+    from diffimpact.scenes import AbstractPlanarScene
+
+    models, free_of = {args.law: experiment}, {args.law: free}
+    friction = experiment.friction
+    if isinstance(experiment.scene, AbstractPlanarScene) and friction is not None:
+        for law in di.RESTITUTION_LAWS:
+            models[law] = di.Experiment(
+                experiment.scene, di.RigidContact(0.5, law), di.Friction(friction.mu)
+            )
+            free_of[law] = [n for n in free if n == "mu"] + ["cor"]
+    else:
+        print("(no rigid baselines: they need a planar scene with friction)")
+    n_test = round(args.holdout * data.n)
+    print(
+        f"fitting {len(models)} models to {data.n - n_test} rows of {args.data}, "
+        f"holding out {n_test} (seed {args.seed or 0})"
+    )
+    cv = di.cross_validate(
+        data,
+        models,
+        free_of,
+        holdout=args.holdout,
+        seed=args.seed or 0,
+        model_options={args.law: own_options},
+        solver=args.solver,
+        max_steps=args.max_steps,
+    )
+    print("held-out RMS error (SI units):")
+    print(cv.table())
+    with open_new(os.path.join(out, "holdout.csv"), args.force) as fh:
+        w = csv.writer(fh)
+        w.writerow(["line", "model", "quantity", "measured_si", "predicted_si"])
+        for i, line in enumerate(cv.test_lines):
+            for model in cv.models:
+                for j, q in enumerate(cv.quantities):
+                    m, p = cv.measured[i, j], cv.predicted[model][i, j]
+                    w.writerow([int(line), model, q, repr(float(m)), repr(float(p))])
+    fig = cv.plot()
+    _save(fig, os.path.join(out, "holdout.png"), args.force)
+    return cv.fits[args.law]
 
 
 def write_residuals(result, path, force=False) -> None:
@@ -281,6 +356,13 @@ def plot_fit(result, path, force=False) -> None:
         ),
         fontsize=9,
     )
+    _save(fig, path, force)
+
+
+def _save(fig, path, force) -> None:
+    """Write a figure exclusively (never over a user's file unless --force)."""
+    import matplotlib.pyplot as plt
+
     fig.tight_layout()
     with open_new(path, force, binary=True) as fh:
         fig.savefig(fh, format="png", dpi=110)
@@ -319,8 +401,5 @@ def plot_loop(result, path, force=False) -> str:
         title=f"line {_line(result, i)}: {label} (SI)",
     )
     ax.title.set_fontsize(8)
-    fig.tight_layout()
-    with open_new(path, force, binary=True) as fh:
-        fig.savefig(fh, format="png", dpi=110)
-    plt.close(fig)
+    _save(fig, path, force)
     return note

@@ -97,6 +97,7 @@ def cross_validate(
     holdout: float = 0.25,
     seed: int = 0,
     outputs=None,
+    model_options: dict | None = None,
     **fit_options,
 ) -> CrossValidation:
     """Fit each model on a random part of ``data`` and predict the rest.
@@ -106,8 +107,10 @@ def cross_validate(
     `free`: the names to fit, one list for every model or name -> list;
     `holdout`: fraction of the rows held out, in (0, 1) (at least one row
     each side); `seed`: the draw; `outputs`: the measured quantities to fit
-    and compare (default: every one in the file that every model predicts);
-    `fit_options`: passed to `diffimpact.fit`.
+    (default: each model is fitted to every quantity of the file it
+    predicts, and the models are compared on those they share);
+    `model_options`: name -> options of `diffimpact.fit` for that model only
+    (``start``, ``bounds``); `fit_options`: passed to every fit.
 
     **Returns** a `CrossValidation` (``.table()``, ``.plot()``).
     """
@@ -127,16 +130,36 @@ def cross_validate(
     order = np.random.default_rng(seed).permutation(n)
     test, train = np.sort(order[:n_test]), np.sort(order[n_test:])
     free_of = free if isinstance(free, dict) else dict.fromkeys(models, free)
+    options = model_options or {}
     train_data, test_data = _rows(data, train), _rows(data, test)
+    measured_q = [q for q, v in data.outputs.items() if np.any(np.isfinite(v))]
+    first = {q: v[0] for q, v in data.inputs.items()}
+
+    def fitted_outputs(e):
+        # What this model predicts of what the file measured (a rigid law
+        # has no contact time): each model is fitted to those.
+        if outputs is not None:
+            return list(outputs)
+        shapes = jax.eval_shape(lambda: predict(e, first))
+        return [q for q in measured_q if q in shapes]
+
     fits = {
-        name: fit(train_data, e, free_of[name], outputs=outputs, **fit_options)
+        name: fit(
+            train_data,
+            e,
+            free_of[name],
+            outputs=fitted_outputs(e),
+            **{**fit_options, **options.get(name, {})},
+        )
         for name, e in models.items()
     }
-    if outputs is None:
-        shared = set.intersection(*(set(f.quantities) for f in fits.values()))
-        quantities = tuple(q for q in fits[next(iter(fits))].quantities if q in shared)
-    else:
-        quantities = tuple(outputs)
+    shared = set.intersection(*(set(f.quantities) for f in fits.values()))
+    quantities = tuple(q for q in measured_q if q in shared)
+    if not quantities:
+        raise ValueError(
+            f"{data.path}: the models share no measured quantity to compare "
+            f"({ {n: f.quantities for n, f in fits.items()} })"
+        )
     measured = np.stack([test_data.outputs[q] for q in quantities], axis=1)
 
     def held_out(experiment):

@@ -450,11 +450,7 @@ def predict(
         out["tangential_velocity"] = r.extras["tangential_velocity_after"]
     if "angular_velocity_after" in r.extras:
         out["angular_velocity"] = r.extras["angular_velocity_after"]
-    spec = scene_spec(e.scene)
-    if spec.tangential_before is not None and "tangential_velocity" in out:
-        out["cor_tangential"] = out["tangential_velocity"] / spec.tangential_before(
-            e.scene
-        )
+    _add_cor_tangential(e.scene, out)
     if not throw:
         out["result"] = r.result
     return out
@@ -472,6 +468,17 @@ def _predict_rigid(e: Experiment, throw: bool) -> dict:
         out["tangential_velocity"] = o["tangential_velocity_after"]
     if "angular_velocity_after" in o:
         out["angular_velocity"] = o["angular_velocity_after"]
+    _add_cor_tangential(e.scene, out)
     if not throw:
         out["result"] = o["result"]
     return out
+
+
+def _add_cor_tangential(scene, out: dict) -> None:
+    """``cor_tangential``: the tangential velocity after over before, for a
+    scene that says what it was before."""
+    spec = scene_spec(scene)
+    if spec.tangential_before is not None and "tangential_velocity" in out:
+        out["cor_tangential"] = out["tangential_velocity"] / spec.tangential_before(
+            scene
+        )
