@@ -105,3 +105,26 @@ def test_a_row_that_does_not_approach_is_named(tmp_path):
     di.write_experiments(tmp_path / "short.csv", columns)
     with pytest.raises(ValueError, match="velocity_y"):
         di.fit(tmp_path / "short.csv", truth, ["mu"])
+
+
+def test_a_clockwise_file_reads_as_its_counter_clockwise_twin(tmp_path):
+    """A file that declares ``# angles: clockwise`` holds the negated
+    orientation and spins of the same impacts: read, the two are equal."""
+    states = _states(4, 4)
+    spin_after = np.array([1.0, -2.0, 3.0, -4.0])
+    ccw = dict(states, angular_velocity_rad_s=spin_after)
+    di.write_experiments(tmp_path / "ccw.csv", ccw)
+    cw = {
+        k: -v if k.startswith(("orientation", "angular_velocity")) else v
+        for k, v in ccw.items()
+    }
+    di.write_experiments(tmp_path / "cw.csv", cw, provenance="angles: clockwise")
+    a, b = (di.load_experiments(tmp_path / f) for f in ("ccw.csv", "cw.csv"))
+    for q in a.inputs:
+        np.testing.assert_array_equal(a.inputs[q], b.inputs[q])
+    np.testing.assert_array_equal(a.outputs["angular_velocity"], spin_after)
+    np.testing.assert_array_equal(b.outputs["angular_velocity"], spin_after)
+    bad = tmp_path / "bad.csv"
+    di.write_experiments(bad, ccw, provenance="angles: widdershins")
+    with pytest.raises(ValueError, match="angle convention must be 'clockwise'"):
+        di.load_experiments(bad)

@@ -204,6 +204,32 @@ class ExperimentData:
         return len(arrays[0]) if arrays else 0
 
 
+# Quantities whose sign is a sense of rotation: a file that declares
+# clockwise-positive angles has them negated on reading.
+_SIGNED_ANGLES = ("orientation", "angular_velocity_before", "angular_velocity")
+
+
+def _clockwise(provenance: list[str], path: str) -> bool:
+    """Whether a provenance line ``angles: clockwise`` declares the file's
+    angles clockwise-positive (``angles: counter-clockwise``, the default,
+    may be written too); anything else after ``angles:`` is refused."""
+    found = None
+    for line in provenance:
+        key, sep, value = line.partition(":")
+        if not sep or key.strip().lower() != "angles":
+            continue
+        value = value.strip().lower().replace("_", "-")
+        if value not in ("clockwise", "counter-clockwise", "counterclockwise"):
+            raise DataError(
+                f"{path}: '# {line}': the angle convention must be 'clockwise' "
+                "or 'counter-clockwise'"
+            )
+        if found is not None and found != (value == "clockwise"):
+            raise DataError(f"{path}: two different 'angles:' declarations")
+        found = value == "clockwise"
+    return bool(found)
+
+
 def load_experiments(path: str | os.PathLike) -> ExperimentData:
     """Read and validate an experiment CSV (schema in this module's docstring).
 
@@ -219,6 +245,10 @@ def load_experiments(path: str | os.PathLike) -> ExperimentData:
     lines above the header are the provenance; a ``#`` line among the rows is
     a commented-out row and is skipped.  Scene names are read as the scene
     registry reads them (``Sphere-On-Incline`` is ``sphere_on_incline``).
+    A provenance line ``angles: clockwise`` declares clockwise-positive
+    angles: ``orientation``, ``angular_velocity_before`` and
+    ``angular_velocity`` are negated to the counter-clockwise convention of
+    the scenes.
     """
     path = os.fspath(path)
     lines = _read_lines(path)
@@ -314,6 +344,11 @@ def load_experiments(path: str | os.PathLike) -> ExperimentData:
             inputs[col.quantity] = arr
         else:
             outputs[col.quantity] = arr
+    if _clockwise(provenance, path):
+        for q in _SIGNED_ANGLES:
+            for group in (inputs, outputs):
+                if q in group:
+                    group[q] = -group[q]
     line_numbers = np.asarray([lineno for lineno, _ in rows])
     for q, a in outputs.items():
         if not np.isfinite(a).any():
