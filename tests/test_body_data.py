@@ -63,6 +63,7 @@ def test_rigid_baseline_recovers_its_own_data(tmp_path):
 
 
 # --8<-- [start:cross-validate]
+@pytest.mark.slow
 def test_compliant_data_is_fitted_and_beats_the_rigid_laws(tmp_path):
     """Data from Jackson-Green contact with friction (yield 400 MPa, mu
     0.25), 16 drops, 4 held out: the compliant model, fitted on the other

@@ -3,6 +3,7 @@
 import json
 
 import numpy as np
+import pytest
 
 from diffimpact._cli import main
 
@@ -67,6 +68,7 @@ def test_simulate_a_scene_with_inputs_and_parameters(capsys):
     np.testing.assert_equal(main(["simulate", "--set", "mu=0.1"]), 2)
 
 
+@pytest.mark.slow
 def test_fit_holdout_compares_the_model_with_the_rigid_laws(tmp_path, capsys):
     """``--holdout``: 5 of the 20 synthetic ball-prism rows held out; the
     Jackson-Green model, fitted on the other 15, predicts their normal COR to
