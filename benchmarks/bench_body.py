@@ -47,12 +47,14 @@ def states(n, seed=0):
     }
 
 
-def predict_batch(experiment):
+def predict_batch(experiment, chunk=None):
     def one(row):
         out = di.predict(experiment, row, throw=False)
         return jnp.stack([out[q] for q in OUT])
 
-    return jax.jit(jax.vmap(one))
+    if chunk is None:
+        return jax.jit(jax.vmap(one))
+    return jax.jit(lambda x: jax.lax.map(one, x, batch_size=chunk))
 
 
 def timed(fn, *args):
@@ -85,15 +87,17 @@ def main() -> int:
         f"{sys.version.split()[0]}, {time.strftime('%Y-%m-%d %H:%M')}\n"
     )
     # 1. Forward: impacts per second, compile excluded (second call).
-    fwd = predict_batch(TRUTH)
     print("| what | impacts | first call [s] | second call [s] | per impact [ms] |")
     print("|---|---|---|---|---|")
-    for n in (200, 2000):
-        x = {k: jnp.asarray(v) for k, v in states(n, 1).items()}
-        _, first = timed(fwd, x)
-        _, second = timed(fwd, x)
-        print(f"| predict, JG + friction | {n} | {first:.1f} | {second:.2f} | "
-              f"{1e3 * second / n:.2f} |")  # fmt: skip
+    for chunk in (None, 8):
+        fwd = predict_batch(TRUTH, chunk)
+        how = "all at once (vmap)" if chunk is None else f"chunks of {chunk}"
+        for n in (200, 2000):
+            x = {k: jnp.asarray(v) for k, v in states(n, 1).items()}
+            _, first = timed(fwd, x)
+            _, second = timed(fwd, x)
+            print(f"| predict, JG + friction, {how} | {n} | {first:.1f} | "
+                  f"{second:.2f} | {1e3 * second / n:.2f} |")  # fmt: skip
     rigid = di.Experiment(BODY, di.RigidContact(0.5, "energetic"), di.Friction(0.25))
     rfwd = predict_batch(rigid)
     x = {k: jnp.asarray(v) for k, v in states(2000, 1).items()}
@@ -104,7 +108,8 @@ def main() -> int:
 
     # 2. Fits, from wrong starts, timed with compilation.
     tmp = Path(tempfile.mkdtemp())
-    print("\n| fit | rows | free | estimates (truth) | iterations | wall [s] |")
+    print("\nfits (chunks of 8 rows, the default on a CPU):")
+    print("| fit | rows | free | estimates (truth) | iterations | wall [s] |")
     print("|---|---|---|---|---|---|")
     for n in (50, 200):
         path = write_file(tmp / f"d{n}.csv", n, 2)

@@ -16,7 +16,7 @@ import jax
 import numpy as np
 
 from ._data import ExperimentData, load_experiments
-from ._fit import FitResult, fit
+from ._fit import FitResult, _chunk_size, fit
 from ._observables import Experiment, predict
 
 
@@ -167,7 +167,13 @@ def cross_validate(
             out = predict(experiment, row, throw=False)
             return [out[q] for q in quantities]
 
-        pred = jax.jit(jax.vmap(one))(test_data.inputs)
+        chunk = _chunk_size("auto", test_data.n)
+        if chunk is None:
+            pred = jax.jit(jax.vmap(one))(test_data.inputs)
+        else:
+            pred = jax.jit(lambda x: jax.lax.map(one, x, batch_size=chunk))(
+                test_data.inputs
+            )
         return np.stack([np.asarray(p) for p in pred], axis=1)
 
     predicted = {name: held_out(f.experiment) for name, f in fits.items()}

@@ -186,6 +186,22 @@ def _json_ready(x):
     return x
 
 
+def _chunk_size(chunk_size, n: int) -> int | None:
+    if chunk_size == "auto":
+        cpu = jax.default_backend() == "cpu"
+        chunk_size = 8 if cpu and n > 8 else None
+    if chunk_size is not None and (
+        isinstance(chunk_size, bool)
+        or not isinstance(chunk_size, int)
+        or chunk_size < 1
+    ):
+        raise ValueError(
+            f"chunk_size={chunk_size!r}: expected an integer >= 1, None (all rows "
+            "at once) or 'auto'"
+        )
+    return None if chunk_size is None or chunk_size >= n else chunk_size
+
+
 class _Problem(eqx.Module):
     """Everything the residual needs, passed as ``args`` (a pytree)."""
 
@@ -198,6 +214,7 @@ class _Problem(eqx.Module):
     paths: tuple[str, ...] = eqx.field(static=True)
     quantities: tuple[str, ...] = eqx.field(static=True)
     transforms: tuple = eqx.field(static=True)
+    chunk_size: int | None = eqx.field(static=True, default=None)
 
     def parameters(self, u):
         return [t.forward(u[i]) for i, t in enumerate(self.transforms)]
@@ -220,7 +237,14 @@ class _Problem(eqx.Module):
             out = predict(e, row, throw=False, _guarded=False)
             return jnp.stack([out[q] for q in self.quantities]), out["result"]._value
 
-        return jax.vmap(one)(self.inputs)
+        if self.chunk_size is None:
+            return jax.vmap(one)(self.inputs)
+        # Chunks solved one after another: a vmapped ODE solve runs as many
+        # steps as the longest impact of its batch, and impacts from measured
+        # states differ (one ellipse drop in 400 took 1,446 steps, the median
+        # 207): on a CPU, chunks of 8 predicted 400 of them in 2.35 s against
+        # 5.20 s all at once.
+        return jax.lax.map(one, self.inputs, batch_size=self.chunk_size)
 
     def residuals(self, u):
         pred, codes = self.predictions(u)
@@ -265,6 +289,7 @@ def fit(
     atol: float = 1e-8,
     learning_rate: float = 0.05,
     progress: bool = False,
+    chunk_size: int | None | str = "auto",
 ) -> FitResult:
     """Fit the free parameters of ``experiment`` to the measurements in ``data``.
 
@@ -283,6 +308,10 @@ def fit(
     - `max_steps`, `rtol`, `atol`: iteration budget and tolerances (on the
       unconstrained parameters, i.e. relative changes); `learning_rate` for adam.
     - `progress`: print a progress bar to stderr.
+    - `chunk_size`: rows solved together (an integer >= 1), or None for all
+      rows at once (one ``vmap``). ``"auto"`` (default): 8 on a CPU, where
+      impacts of different lengths then wait less for the longest of a batch,
+      and all rows on an accelerator.
 
     **Returns:** a `FitResult`.
     """
@@ -362,6 +391,7 @@ def fit(
         paths=paths,
         quantities=quantities,
         transforms=transforms,
+        chunk_size=_chunk_size(chunk_size, data.n),
     )
     # The unconstrained point of the start values (0 for the log and affine
     # maps, not for bounded ones: a sigmoid's 0 is the middle of its bounds).
