@@ -242,8 +242,8 @@ class _Problem(eqx.Module):
         # Chunks solved one after another: a vmapped ODE solve runs as many
         # steps as the longest impact of its batch, and impacts from measured
         # states differ (one ellipse drop in 400 took 1,446 steps, the median
-        # 207): on a CPU, chunks of 8 predicted 400 of them in 2.35 s against
-        # 5.20 s all at once.
+        # 207): on a CPU, chunks of 8 predicted 2,000 of them in 11.3 s against
+        # 23.9 s all at once (benchmarks/bench_body.py).
         return jax.lax.map(one, self.inputs, batch_size=self.chunk_size)
 
     def residuals(self, u):
