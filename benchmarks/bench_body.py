@@ -24,6 +24,7 @@ import numpy as np
 
 jax.config.update("jax_enable_x64", True)
 import diffimpact as di  # noqa: E402
+from diffimpact._fit import map_rows  # noqa: E402
 
 HERE = Path(__file__).parent
 S = di.scenes
@@ -52,9 +53,7 @@ def predict_batch(experiment, chunk=None):
         out = di.predict(experiment, row, throw=False)
         return jnp.stack([out[q] for q in OUT])
 
-    if chunk is None:
-        return jax.jit(jax.vmap(one))
-    return jax.jit(lambda x: jax.lax.map(one, x, batch_size=chunk))
+    return jax.jit(lambda x: map_rows(one, x, chunk))
 
 
 def timed(fn, *args):

@@ -16,7 +16,7 @@ import jax
 import numpy as np
 
 from ._data import ExperimentData, load_experiments
-from ._fit import FitResult, _chunk_size, fit
+from ._fit import FitResult, _chunk_size, fit, map_rows
 from ._observables import Experiment, predict
 
 
@@ -168,12 +168,7 @@ def cross_validate(
             return [out[q] for q in quantities]
 
         chunk = _chunk_size("auto", test_data.n)
-        if chunk is None:
-            pred = jax.jit(jax.vmap(one))(test_data.inputs)
-        else:
-            pred = jax.jit(lambda x: jax.lax.map(one, x, batch_size=chunk))(
-                test_data.inputs
-            )
+        pred = jax.jit(lambda x: map_rows(one, x, chunk))(test_data.inputs)
         return np.stack([np.asarray(p) for p in pred], axis=1)
 
     predicted = {name: held_out(f.experiment) for name, f in fits.items()}

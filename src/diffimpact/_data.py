@@ -88,7 +88,7 @@ radius                | length           | input  | >= 0 | radius of the sphere 
 orientation           | angle            | input  | any  | a planar body's angle at first contact (counter-clockwise)
 velocity_x            | velocity         | input  | any  | centre-of-mass velocity along the flat at first contact
 velocity_y            | velocity         | input  | any  | centre-of-mass velocity normal to the flat at first contact (< 0: falling)
-angular_velocity_before | angular_velocity | input | any | angular velocity at first contact (counter-clockwise)
+angular_velocity_before | angular_velocity | input  | any  | angular velocity at first contact (counter-clockwise)
 contact_time          | time             | output | >= 0 | first contact to separation
 rebound_velocity      | velocity         | output | >= 0 | normal rebound speed of the contact point
 tangential_velocity   | velocity         | output | any  | tangential velocity of the centre of mass after the impact

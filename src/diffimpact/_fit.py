@@ -186,6 +186,18 @@ def _json_ready(x):
     return x
 
 
+def map_rows(fn, rows, chunk_size: int | None):
+    """``fn`` over the rows of ``rows`` (a dict of arrays): all at once
+    (``vmap``) when `chunk_size` is None, else in chunks one after another.
+    A vmapped ODE solve runs as many steps as the longest impact of its
+    batch, and impacts from measured states differ (one ellipse drop in 400
+    took 1,446 steps, the median 207): on a CPU, chunks of 8 predicted 2,000
+    of them in 11.3 s against 23.9 s all at once (benchmarks/bench_body.py)."""
+    if chunk_size is None:
+        return jax.vmap(fn)(rows)
+    return jax.lax.map(fn, rows, batch_size=chunk_size)
+
+
 def _chunk_size(chunk_size, n: int) -> int | None:
     if chunk_size == "auto":
         cpu = jax.default_backend() == "cpu"
@@ -237,14 +249,7 @@ class _Problem(eqx.Module):
             out = predict(e, row, throw=False, _guarded=False)
             return jnp.stack([out[q] for q in self.quantities]), out["result"]._value
 
-        if self.chunk_size is None:
-            return jax.vmap(one)(self.inputs)
-        # Chunks solved one after another: a vmapped ODE solve runs as many
-        # steps as the longest impact of its batch, and impacts from measured
-        # states differ (one ellipse drop in 400 took 1,446 steps, the median
-        # 207): on a CPU, chunks of 8 predicted 2,000 of them in 11.3 s against
-        # 23.9 s all at once (benchmarks/bench_body.py).
-        return jax.lax.map(one, self.inputs, batch_size=self.chunk_size)
+        return map_rows(one, self.inputs, self.chunk_size)
 
     def residuals(self, u):
         pred, codes = self.predictions(u)

@@ -120,10 +120,9 @@ class _Piecewise:
         second = self.ps + (target - self.s_star) / self.k2
         return jnp.where((self.k1 > 0) & (first <= self.p_star), first, second)
 
-    def energetic_end(self, cor):
+    def energetic_end(self, cor, p_c):
         """The ``p`` at which the restitution work is ``cor^2`` times minus
-        the compression work (Stronge's law)."""
-        p_c = self.speed_inverse(jnp.zeros_like(self.s0))
+        the compression work (Stronge's law); ``p_c`` ends compression."""
         g = jnp.maximum(-self.work(p_c), 0.0)  # minus the compression work
         # From p_c, where s = 0, E rises as k x^2 / 2 on the segment holding
         # p_c: x = cor sqrt(2 g / k), smooth in cor down to 0.
@@ -159,9 +158,9 @@ def rigid_impact(
     `scenes.PlanarBody`); `mu`: Coulomb friction coefficient (>= 0); `cor`:
     coefficient of restitution ``e`` in [0, 1]; `restitution`: ``"newton"``,
     ``"poisson"`` or ``"energetic"`` (module docstring); `throw`: as in
-    `diffimpact.simulate` (a contact that friction jams, ``a - mu |b| <= 0``
-    while sliding, Painleve's paradox, has no rigid solution:
-    ``never_separates``).
+    `diffimpact.simulate` (a stuck contact whose ``J_n`` is parallel to
+    ``J_t``, a pinned link wedged by friction, has no rigid solution:
+    ``never_separates``, as the compliant model reports it).
 
     **Returns** a dict: the scene's `report` after the impact (e.g.
     ``velocity_x_after``, ``angular_velocity_after``), the velocities
@@ -217,7 +216,7 @@ def rigid_impact(
     elif restitution == "poisson":
         p_f = (1.0 + cor) * p_c
     else:
-        p_f = s.energetic_end(cor)
+        p_f = s.energetic_end(cor, p_c)
     first = s.on_first(p_f)
     p_t = dpt1 * jnp.where(first, p_f, s.ps) + jnp.where(
         first, 0.0, dpt2 * (p_f - s.ps)

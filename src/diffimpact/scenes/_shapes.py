@@ -171,10 +171,8 @@ class RoundedPolygon(AbstractShape):
     def _checks(self):
         pts = self._points()
         edges = jnp.roll(pts, -1, axis=0) - pts
-        turns = (
-            edges[:, 0] * jnp.roll(edges, -1, axis=0)[:, 1]
-            - edges[:, 1] * jnp.roll(edges, -1, axis=0)[:, 0]
-        )
+        ahead = jnp.roll(edges, -1, axis=0)
+        turns = edges[:, 0] * ahead[:, 1] - edges[:, 1] * ahead[:, 0]
         convex = jnp.all(turns > 0) | jnp.all(turns < 0)
         return [
             check(
