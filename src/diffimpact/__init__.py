@@ -38,6 +38,7 @@ from ._laws._dissipative import LankaraniNikravesh as LankaraniNikravesh
 from ._laws._friction import Friction as Friction
 from ._laws._hertz import Hertz as Hertz
 from ._laws._jackson_green import JacksonGreen as JacksonGreen
+from ._laws._line import LineContact as LineContact
 from ._materials import ContactProperties as ContactProperties
 from ._materials import Material as Material
 from ._materials import contact_properties as contact_properties

@@ -8,6 +8,7 @@ import jax.numpy as jnp
 from ._calibrate import damping_ratio
 from ._laws._base import MAX_DEPTH, AbstractBoundLaw, AbstractNormalLaw
 from ._laws._dissipative import _AbstractDampedHertz
+from ._laws._line import LineContact
 from ._normal_solve import reference_length
 from ._result import RESULTS
 from .scenes._base import NormalProblem
@@ -18,11 +19,25 @@ def _bind(
 ) -> AbstractBoundLaw:
     """``law`` bound to ``problem``; ``zeta``: a calibrated law's damping ratio
     when already computed (it does not depend on the problem)."""
-    if isinstance(law, _AbstractDampedHertz) and law.calibrated:
+    if _calibrated(law):
         if zeta is None:
-            zeta = damping_ratio(law.cor, law.exponent)
+            zeta = _damping_ratio(law)
         return law.bind(problem.contact, problem.velocity, zeta)
     return law.bind(problem.contact, problem.velocity)
+
+
+def _calibrated(law) -> bool:
+    """Whether the law's damping is the exact root for its ``cor``."""
+    if isinstance(law, LineContact):
+        return law.cor is not None
+    return isinstance(law, _AbstractDampedHertz) and law.calibrated
+
+
+def _damping_ratio(law):
+    # The restitution of F_el(d) (1 + D d_dot) depends on zeta = D v0 alone,
+    # whatever the elastic law (docs/physics/contact.md, L-4): the power
+    # law's root serves the line contact too.
+    return damping_ratio(law.cor, getattr(law, "exponent", 1.5))
 
 
 # Depth, as a fraction of the effective radius, of the stand-in impact solved
@@ -44,9 +59,7 @@ def within_model(law, problem: NormalProblem, stand_in: bool = True):
     not slowed or poisoned by one bad row."""
     # A calibrated law's damping ratio (a root solve through ODE solves) does
     # not depend on the speed: computed once for both bindings.
-    zeta = None
-    if isinstance(law, _AbstractDampedHertz) and law.calibrated:
-        zeta = damping_ratio(law.cor, law.exponent)
+    zeta = _damping_ratio(law) if _calibrated(law) else None
     bound = _bind(law, problem, zeta)
     k, n = bound.scale()
     m, v0 = problem.mass, problem.velocity

@@ -269,18 +269,19 @@ def _energy_max_deflection(problem, bound):
     m, g, v0 = problem.mass, problem.gravity, problem.velocity
 
     def h(d, args):
-        k, n, m, g, v0 = args
-        return k * d ** (n + 1.0) / (n + 1.0) - m * g * d - 0.5 * m * v0**2
+        bound, m, g, v0 = args
+        return bound.elastic_work(d) - m * g * d - 0.5 * m * v0**2
 
+    # Start right of the root of the power law (h convex): Newton then
+    # converges monotonically; from the scale's estimate for other laws.
     d_free = ((n + 1.0) * 0.5 * m * v0**2 / k) ** (1.0 / (n + 1.0))
     d_static = (2.0 * jnp.abs(m * g) / k) ** (1.0 / n)
 
     def dh(d, args):
-        k, n, m, g, _ = args
-        return k * d**n - m * g
+        bound, m, g, _ = args
+        return bound.loading_force(d, jnp.zeros_like(d), 0) - m * g
 
-    # Start right of the root (h convex): Newton then converges monotonically.
-    return newton_root(h, d_free + d_static, (k, n, m, g, v0), fprime=dh)
+    return newton_root(h, d_free + d_static, (bound, m, g, v0), fprime=dh)
 
 
 def _solve_smooth(problem, bound, settings, n_history):

@@ -95,6 +95,12 @@ def normal_timeline(problem, bound, settings) -> Timeline:
             "interference only (Hertz, JacksonGreen); this law depends on the "
             "interference rate: use method='smooth' or 'events'"
         )
+    if not bound.power_law:
+        raise ValueError(
+            "method='quadrature' needs a power law K d^n (Hertz, JacksonGreen, "
+            "AdamsImpact); use method='smooth' or 'events' for "
+            f"{type(bound).__name__}"
+        )
     order = settings.quadrature_order
     m, g, v0 = problem.mass, problem.gravity, problem.velocity
     energy = 0.5 * m * v0**2

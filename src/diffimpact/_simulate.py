@@ -103,17 +103,19 @@ def _simulate(scene, law, method, settings, n_history, friction, throw):
     # (`_exact_tangential`): solved as the 1-DOF normal problem, with no
     # tangential state at all.
     problem, bound, inside = within_model(law, scene.normal_problem())
-    exact = _exact_tangential(scene, friction) and not bound.rate_dependent
+    # The ODE-free closed forms need a rate-independent power law.
+    closed_form = bound.power_law and not bound.rate_dependent
+    exact = _exact_tangential(scene, friction) and closed_form
     if coupled and method == "quadrature" and not exact:
         raise ValueError(_NO_EXACT_TANGENTIAL)
     if coupled and not (exact and method in ("auto", "quadrature")):
         res = solve_planar(scene, law, friction, settings)
         return finish(res, res.result, throw)
     # "auto": the exact ODE-free solution wherever it applies (a
-    # rate-independent law); the smooth ODE for rate-dependent laws and for
+    # rate-independent power law); the smooth ODE for other laws and for
     # histories.
     smooth = method == "smooth" or (
-        method == "auto" and (bound.rate_dependent or n_history > 0)
+        method == "auto" and (not closed_form or n_history > 0)
     )
     if smooth and not coupled:
         raw = _solve_smooth(problem, bound, settings, n_history)

@@ -185,8 +185,7 @@ class _Span(eqx.Module):
         hysteretic ones (nothing is stored once the contact is open)."""
         if self.hysteretic:
             return jnp.zeros_like(d)
-        k, e = self.bound.scale()
-        return k * safe_pow(d, e + 1.0) / (e + 1.0)
+        return self.bound.elastic_work(d)
 
     def kinetic(self, q, q_dot):
         v = jax.jvp(self.scene.positions, (q,), (q_dot,))[1]
@@ -220,7 +219,7 @@ def _history_rate(p: _Span, d, v, d_m):
 
 
 def _bind(law, scene):
-    if isinstance(law, _AbstractDampedHertz):
+    if isinstance(law, _AbstractDampedHertz) or getattr(law, "cor", None) is not None:
         raise ValueError(
             f"{type(law).__name__} takes its damping from the approach speed of "
             "one impact (D = f(e) / v0); over a span of many impacts there is no "

@@ -15,6 +15,9 @@ which states it needs (the scene pays only for what it uses):
   force is not ``F(d_m)`` and is tracked as state.
 - ``n_loading_phases``: 1, or 2 when loading switches law at
   ``switch_deflection`` (JG-4 / JG-5).
+- ``power_law``: the elastic part is exactly ``scale()``'s ``K d^n``, which
+  the ODE-free quadrature's closed forms assume; a law that is not (the line
+  contact) sets it False and supplies ``elastic_work``.
 """
 
 from __future__ import annotations
@@ -28,6 +31,7 @@ from jaxtyping import Array
 
 from .._checks import AbstractValidated
 from .._materials import ContactProperties
+from .._smooth import safe_pow
 
 # Deepest interference, as a fraction of the effective radius, that the contact
 # laws are used for: Hertz and the JG fits describe a contact small against the
@@ -40,6 +44,7 @@ class AbstractBoundLaw(eqx.Module):
     hysteretic: eqx.AbstractClassVar[bool]
     rate_dependent: eqx.AbstractClassVar[bool]
     n_loading_phases: ClassVar[int] = 1
+    power_law: ClassVar[bool] = True
 
     @abc.abstractmethod
     def scale(self):
@@ -75,7 +80,7 @@ class AbstractBoundLaw(eqx.Module):
     def elastic_work(self, d):
         """``int_0^d`` of the phase-0 loading force [J] (closed form)."""
         k, n = self.scale()
-        return k * d ** (n + 1.0) / (n + 1.0)
+        return k * safe_pow(d, n + 1.0) / (n + 1.0)
 
     def unloading_exponent(self):
         """Exponent ``p`` of ``F = F_m ((d - d_r)/(d_m - d_r))^p`` in restitution."""
