@@ -72,9 +72,9 @@ def test_closed_forms_over_speeds(method):
     (measured: 6e-16 and 1e-12 smooth at 1 m/s; the bound is the issue's), a
     rebound at the approach speed (elastic), in one vmapped call."""
     speeds = jnp.array([0.01, 0.1, 1.0, 5.0])
-    r = jax.vmap(
-        lambda v: di.simulate(scene(v, 0.0), di.LineContact(LENGTH), method)
-    )(speeds)
+    r = jax.vmap(lambda v: di.simulate(scene(v, 0.0), di.LineContact(LENGTH), method))(
+        speeds
+    )
     for i, v in enumerate(speeds):
         d_max, t_c = references(scene(float(v), 0.0))
         assert rel(r.max_deflection[i], d_max) < 1e-7
@@ -141,7 +141,9 @@ def test_planar_body_takes_the_line_contact():
     elastic = di.simulate(body, di.LineContact(LENGTH))
     assert elastic.result == di.RESULTS.successful
     assert rel(elastic.cor_energetic, 1.0) < 1e-7  # frictionless, elastic
-    damped = di.simulate(body, di.LineContact(LENGTH, cor=0.6), friction=di.Friction(0.25))
+    damped = di.simulate(
+        body, di.LineContact(LENGTH, cor=0.6), friction=di.Friction(0.25)
+    )
     assert 0.4 < float(damped.cor_newton) < 0.8
 
     def spin(mu):

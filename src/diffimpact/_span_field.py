@@ -10,7 +10,7 @@ import jax.numpy as jnp
 from jaxtyping import Array
 
 from ._laws._dissipative import _AbstractDampedHertz
-from ._smooth import safe_pow, step
+from ._smooth import step
 from ._span_types import SpanSettings
 from .scenes._mechanisms import AbstractMechanism
 
