@@ -259,7 +259,39 @@ class _Problem(eqx.Module):
 
 
 def _residual_fn(u, problem: _Problem):
-    return problem.residuals(u), None
+    return _residuals(u, problem), None
+
+
+# optimistix's Gauss-Newton family takes the Jacobian by `jax.linearize`.
+# Through a diffrax while loop that cannot separate the primal from the
+# tangents: every application of the linear map re-runs the whole solve, and
+# materialising the Jacobian for the QR step ran it once per parameter on top
+# of the residuals (a step cost 7 predictions).  The residuals' JVP rule below
+# computes the Jacobian with the residuals in one forward pass (`jax.jacfwd`:
+# the primal once, the tangents batched), so `linearize` keeps a plain matrix
+# product for its linear part.  Measured, bench_body.py (RESULTS "Planar bodies
+# from measured states").
+@eqx.filter_custom_jvp
+def _residuals(u, problem: _Problem):
+    return problem.residuals(u)
+
+
+@_residuals.def_jvp
+def _residuals_jvp(primals, tangents):
+    u, problem = primals
+    t_u, _ = tangents  # the data are not differentiated
+    jac, r = _value_and_jacobian(u, problem)
+    return r, jac @ t_u
+
+
+def _value_and_jacobian(u, problem: _Problem):
+    """``(J, r)``: the residuals' Jacobian and the residuals, one forward pass."""
+
+    def both(v):
+        r = problem.residuals(v)
+        return r, r
+
+    return jax.jacfwd(both, has_aux=True)(u)
 
 
 # Compiled once per problem structure (scene, law, free parameters, number of
