@@ -89,6 +89,7 @@ orientation           | angle            | input  | any  | a planar body's angle
 velocity_x            | velocity         | input  | any  | centre-of-mass velocity along the flat at first contact
 velocity_y            | velocity         | input  | any  | centre-of-mass velocity normal to the flat at first contact (< 0: falling)
 angular_velocity_before | angular_velocity | input  | any  | angular velocity at first contact (counter-clockwise)
+height                | length           | input  | >= 0 | height of a planar body's centre of mass above the flat at the given state (omitted: the state is at first contact)
 contact_time          | time             | output | >= 0 | first contact to separation
 rebound_velocity      | velocity         | output | >= 0 | normal rebound speed of the contact point
 tangential_velocity   | velocity         | output | any  | tangential velocity of the centre of mass after the impact

@@ -183,6 +183,7 @@ def rigid_impact(
     ]
     scene, mu, cor = guard((scene, mu, cor), limits)
     traced = is_traced((scene, mu, cor))
+    scene = scene.at_first_contact()  # a free flight first, in closed form
     q0, q_dot0 = scene.initial_state()
     _, j_n, j_t = scene.kinematics(q0)
     inv_m = 1.0 / scene.mass_diagonal()

@@ -97,6 +97,8 @@ def _exact_tangential(scene, friction) -> bool:
 @eqx.filter_jit
 def _simulate(scene, law, method, settings, n_history, friction, throw):
     planar = isinstance(scene, AbstractPlanarScene)
+    if planar:  # free flight to the contact in closed form, not integrated
+        scene = scene.at_first_contact()
     coupled = planar and (friction is not None or not scene.normal_decouples)
     # 1-DOF scenes, frictionless planar scenes whose normal DOF decouples
     # (`normal_decouples`), and decoupled scenes with rigid friction

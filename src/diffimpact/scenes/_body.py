@@ -2,9 +2,11 @@
 
 from __future__ import annotations
 
+import dataclasses
 from typing import ClassVar
 
 import equinox as eqx
+import jax
 import jax.numpy as jnp
 from jaxtyping import Array
 
@@ -12,6 +14,16 @@ from .._checks import as_float, check, finite, positive_fields
 from .._materials import Material, contact_properties
 from ._planar import AbstractPlanarScene
 from ._shapes import AbstractShape, down, down_change
+
+# Grid of the first-touch search over the flight and bisections after it:
+# 256 intervals resolve touches apart by 0.4 % of the flight; 60 halvings
+# bring the bracket to rounding.
+_FLIGHT_GRID = 257
+_BISECTIONS = 60
+
+
+def _optional_float(x):
+    return None if x is None else as_float(x)
 
 
 class PlanarBody(AbstractPlanarScene):
@@ -46,11 +58,15 @@ class PlanarBody(AbstractPlanarScene):
     (materials); `angle` [rad]; `velocity_x`, `velocity_y` [m/s] of the centre of mass
     (``velocity_y < 0`` falls); `angular_velocity` [rad/s]; `com_x`, `com_y`
     [m]: the centre of mass in the shape's frame (default its origin);
-    `incline` [rad] in [0, pi/2) (default 0); `gravity` [m/s^2] (default 9.81).
+    `incline` [rad] in [0, pi/2) (default 0); `gravity` [m/s^2] (default 9.81);
+    `height` [m]: None (default) when the state is the one at first contact;
+    else the height of the centre of mass above the flat at the given state
+    (a camera frame before the impact), from which the body flies freely, in
+    closed form, to its first contact (`flight_time`, S-12).
 
     In an experiment file (docs: Data formats) the columns ``orientation``,
     ``velocity_x``, ``velocity_y`` (and optionally ``angular_velocity_before``,
-    ``mass``) set the state row by row; the measured ``velocity_x_after``,
+    ``mass``, ``height``) set the state row by row; the measured ``velocity_x_after``,
     ``velocity_y_after`` and ``angular_velocity`` are predicted.
 
     ``result.extras``: `velocity_x_after`, `velocity_y_after` (centre of mass;
@@ -65,6 +81,7 @@ class PlanarBody(AbstractPlanarScene):
         "velocity_y": "velocity_y",
         "angular_velocity_before": "angular_velocity",
         "mass": "mass",
+        "height": "height",
     }
     data_required: ClassVar = ("orientation", "velocity_x", "velocity_y")
 
@@ -81,6 +98,7 @@ class PlanarBody(AbstractPlanarScene):
     com_y: Array = eqx.field(converter=as_float, default=0.0)
     incline: Array = eqx.field(converter=as_float, default=0.0)
     gravity: Array = eqx.field(converter=as_float, default=9.81)
+    height: Array | None = eqx.field(converter=_optional_float, default=None)
 
     def _checks(self):
         com = jnp.stack([self.com_x, self.com_y])
@@ -106,13 +124,7 @@ class PlanarBody(AbstractPlanarScene):
             finite(self.angle, "PlanarBody.angle"),
             finite(self.velocity_x, "PlanarBody.velocity_x"),
             finite(self.angular_velocity, "PlanarBody.angular_velocity"),
-            check(
-                self.velocity_y,
-                jnp.isfinite(self.velocity_y) & (self._approach_speed() > 0),
-                "`PlanarBody.velocity_y` and `angular_velocity`: the contact "
-                "point must approach the flat (d_dot = -velocity_y - r_x "
-                "angular_velocity > 0 at first contact)",
-            ),
+            *self._state_checks(),
             check(
                 incline,
                 jnp.isfinite(incline) & (incline >= 0) & (incline < jnp.pi / 2),
@@ -124,6 +136,97 @@ class PlanarBody(AbstractPlanarScene):
                 "`PlanarBody.gravity` must be a finite number >= 0 in m/s^2",
             ),
         ]
+
+    def _state_checks(self):
+        if self.height is None:
+            return [
+                check(
+                    self.velocity_y,
+                    jnp.isfinite(self.velocity_y) & (self._approach_speed() > 0),
+                    "`PlanarBody.velocity_y` and `angular_velocity`: the contact "
+                    "point must approach the flat (d_dot = -velocity_y - r_x "
+                    "angular_velocity > 0 at first contact)",
+                )
+            ]
+        falls = (self.velocity_y < 0) | (self.gravity * jnp.cos(self.incline) > 0)
+        return [
+            finite(self.velocity_y, "PlanarBody.velocity_y"),
+            check(
+                self.height,
+                jnp.isfinite(self.height) & (self.gap(0.0) >= 0),
+                "`PlanarBody.height` (of the centre of mass above the flat [m]) "
+                "must be at least the depth of the body's lowest point below "
+                "its centre of mass at the given angle: the body overlaps the "
+                "flat",
+            ),
+            check(
+                self.velocity_y,
+                falls,
+                "`PlanarBody.velocity_y`: without gravity the body must move "
+                "towards the flat (< 0) to reach it from `height`",
+            ),
+        ]
+
+    def gap(self, t):
+        """Height [m] of the body's lowest point above the flat after a free
+        flight of ``t`` [s] from the given state (needs `height`) (S-12)."""
+        r, _ = self._lever(self.angle + self.angular_velocity * t)
+        g_n = self.gravity * jnp.cos(self.incline)
+        return self.height + self.velocity_y * t - 0.5 * g_n * t**2 + r[1]
+
+    def flight_time(self):
+        """Time [s] of the free flight from the given state to first contact
+        (0 without `height`) (S-12)."""
+        if self.height is None:
+            return jnp.zeros_like(self.angle)
+        g_n = self.gravity * jnp.cos(self.incline)
+        # The centre of mass reaches the flat at t_end, written without a
+        # division by g (g = 0 is allowed): the lowest point is there by then.
+        t_end = (
+            2.0
+            * self.height
+            / (
+                -self.velocity_y
+                + jnp.sqrt(self.velocity_y**2 + 2.0 * g_n * self.height)
+            )
+        )
+        t_end = jax.lax.stop_gradient(t_end)
+        # The first sign change on a grid (a spinning body may touch, lift
+        # and touch again: the first touch counts), then bisection; neither is
+        # differentiated.  One Newton step from the bracket carries the
+        # implicit derivative dt/dp = -(dgap/dp) / (dgap/dt).
+        fixed = jax.lax.stop_gradient(self)
+        ts = jnp.linspace(0.0, 1.0, _FLIGHT_GRID) * t_end
+        gaps = jax.vmap(fixed.gap)(ts)
+        first = jnp.argmax(gaps <= 0)
+        lo, hi = ts[jnp.maximum(first - 1, 0)], ts[first]
+
+        def halve(_, bracket):
+            lo, hi = bracket
+            mid = 0.5 * (lo + hi)
+            above = fixed.gap(mid) > 0
+            return jnp.where(above, mid, lo), jnp.where(above, hi, mid)
+
+        lo, hi = jax.lax.fori_loop(0, _BISECTIONS, halve, (lo, hi))
+        t = jax.lax.stop_gradient(hi)
+        value, slope = jax.jvp(self.gap, (t,), (jnp.ones_like(t),))
+        return t - value / jnp.where(slope < 0, slope, -1.0)
+
+    def at_first_contact(self):
+        """The same body with its state at first contact (itself without
+        `height`): the free flight in closed form (S-12), the incline's
+        gravity included."""
+        if self.height is None:
+            return self
+        t = self.flight_time()
+        g = self.gravity
+        return dataclasses.replace(
+            self,
+            angle=self.angle + self.angular_velocity * t,
+            velocity_x=self.velocity_x + g * jnp.sin(self.incline) * t,
+            velocity_y=self.velocity_y - g * jnp.cos(self.incline) * t,
+            height=None,
+        )
 
     def _lever(self, theta):
         """``(r, rho)``: the contact point from the centre of mass (world frame)

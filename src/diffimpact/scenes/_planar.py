@@ -61,6 +61,12 @@ class AbstractPlanarScene(AbstractScene):
         """What an experimenter measures, from the state after separation."""
         return {}
 
+    def at_first_contact(self):
+        """The scene with its state at first contact (a scene whose state may
+        be given before the contact, as `PlanarBody` with a height, flies
+        there in closed form; every other scene starts there)."""
+        return self
+
     def normal_problem(self) -> NormalProblem:
         """The normal problem at first contact: effective mass
         ``1 / (J_n M^-1 J_n^T)``, approach speed ``J_n q_dot``, gravity's
