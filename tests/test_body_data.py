@@ -2,6 +2,8 @@
 columns set `PlanarBody`'s state row by row, the compliant model and the
 rigid baselines (`RigidContact`) are fitted to the same file."""
 
+import dataclasses
+
 import numpy as np
 import pytest
 
@@ -150,3 +152,87 @@ def test_diverging_sensitivities_are_named(tmp_path):
     start = di.Experiment(BODY, di.JacksonGreen(), di.Friction(0.4), settings=loose)
     with pytest.raises(di.SolverError, match="Dopri8"):
         di.fit(path, start, ["mu"])
+
+
+def _with_jacobian(states, flip=1.0):
+    """``states`` plus the contact Jacobian columns the body's shape gives
+    (angular parts times ``flip``), and energetic-law measurements."""
+    truth = di.Experiment(BODY, di.RigidContact(0.7, "energetic"), di.Friction(0.3))
+    cols = dict(states)
+    rows = []
+    for i in range(len(states["orientation_deg"])):
+        scene = dataclasses.replace(
+            BODY,
+            angle=np.radians(states["orientation_deg"][i]),
+            velocity_x=states["velocity_x_m_s"][i],
+            velocity_y=states["velocity_y_m_s"][i],
+            angular_velocity=states["angular_velocity_before_rad_s"][i],
+        )
+        rows.append(np.asarray(np.stack(scene.contact_jacobian())))
+    rows = np.asarray(rows)
+    for name, (a, b) in {
+        "jacobian_normal_x": (0, 0),
+        "jacobian_normal_y": (0, 1),
+        "jacobian_normal_angular_mm": (0, 2),
+        "jacobian_tangent_x": (1, 0),
+        "jacobian_tangent_y": (1, 1),
+        "jacobian_tangent_angular_mm": (1, 2),
+    }.items():
+        scale = 1e3 * flip if name.endswith("_mm") else 1.0
+        cols[name] = rows[:, a, b] * scale
+    return truth, cols
+
+
+def _write_columns(path, experiment, columns, provenance=""):
+    states = {k: v for k, v in columns.items() if not k.startswith("jacobian")}
+    rows = [
+        dict(zip(states, r, strict=True)) for r in zip(*states.values(), strict=True)
+    ]
+    out = [di.predict(experiment, row) for row in rows]
+    columns = dict(columns)
+    for key, column in MEASURED.items():
+        columns[column] = np.array([float(o[key]) for o in out])
+    di.write_experiments(path, columns, provenance=provenance)
+    return path
+
+
+def test_contact_jacobian_rows_are_checked_against_the_shape(tmp_path):
+    """A file's contact Jacobian rows that agree with the shape pass (the fit
+    runs); the same rows with the angular parts of the other sense of
+    rotation are refused before any solve, naming the lines."""
+    states = _states(12, 4)
+    truth, good = _with_jacobian(states)
+    start = di.Experiment(BODY, di.RigidContact(0.5, "energetic"), di.Friction(0.1))
+    path = _write_columns(tmp_path / "good.csv", truth, good)
+    assert di.load_experiments(path).checks.keys() == {
+        "jacobian_normal_x", "jacobian_normal_y", "jacobian_normal_angular",
+        "jacobian_tangent_x", "jacobian_tangent_y", "jacobian_tangent_angular",
+    }  # fmt: skip
+    np.testing.assert_allclose(di.fit(path, start, ["mu", "cor"]).values, [0.3, 0.7])
+    _, flipped = _with_jacobian(states, flip=-1.0)
+    path = _write_columns(tmp_path / "flipped.csv", truth, flipped)
+    with pytest.raises(di.DataError, match=r"disagrees with the body's shape.*line 3"):
+        di.fit(path, start, ["mu", "cor"])
+
+
+def test_clockwise_files_flip_the_jacobian_too(tmp_path):
+    """A clockwise-positive file (angles, spins and the Jacobian's angular
+    parts all of the other sense) checks out once it says so."""
+    states = _states(6, 5)
+    truth, cols = _with_jacobian(states)
+    path = _write_columns(tmp_path / "ccw.csv", truth, cols)
+    data = di.load_experiments(path)
+    mirrored = {k: v for k, v in cols.items()}
+    for k in ("orientation_deg", "angular_velocity_before_rad_s"):
+        mirrored[k] = -cols[k]
+    for k in ("jacobian_normal_angular_mm", "jacobian_tangent_angular_mm"):
+        mirrored[k] = -cols[k]
+    measured = {c: data.outputs[q] for q, c in MEASURED.items()}
+    measured["angular_velocity_rad_s"] = -measured["angular_velocity_rad_s"]
+    cw = tmp_path / "cw.csv"
+    di.write_experiments(cw, {**mirrored, **measured}, provenance="angles: clockwise")
+    back = di.load_experiments(cw)
+    for q in data.checks:
+        np.testing.assert_allclose(back.checks[q], data.checks[q], rtol=1e-12)
+    start = di.Experiment(BODY, di.RigidContact(0.5, "energetic"), di.Friction(0.1))
+    np.testing.assert_allclose(di.fit(cw, start, ["mu", "cor"]).values, [0.3, 0.7])

@@ -64,7 +64,7 @@ def test_write_then_load_round_trip_and_no_overwrite(tmp_path):
         ("drop_height_s,cor_normal\n1,0.5\n", "does not fit 'drop_height'"),
         ("drop_height,cor_normal\n1,0.5\n", "has no unit"),
         ("cor_normal_m\n0.5\n", "dimensionless"),
-        ("height_m,cor_normal\n1,0.5\n", "unknown column 'height_m'"),
+        ("drop_hieght_m,cor_normal\n1,0.5\n", "unknown column 'drop_hieght_m'"),
         ("drop_height_m,angle_deg\n1,30\n", "no measured output"),
         ("drop_height_m,cor_normal,sigma_contact_time_s\n1,0.5,1\n", "no measured"),
         ("drop_height_m,cor_normal,sigma_cor_normal\n1,0.5,0\n", r"line 2.*> 0"),

@@ -85,6 +85,7 @@ def _rows(data: ExperimentData, index: np.ndarray) -> ExperimentData:
         inputs=pick,
         outputs={k: v[index] for k, v in data.outputs.items()},
         sigmas={k: v[index] for k, v in data.sigmas.items()},
+        checks={k: v[index] for k, v in data.checks.items()},
         lines=None if data.lines is None else data.lines[index],
     )
 

@@ -68,7 +68,7 @@ _SI = {
 class Quantity:
     name: str
     dimension: str
-    role: str  # "input" or "output"
+    role: str  # "input", "output" or "check" (compared with the model, not used)
     nonnegative: bool
     doc: str
     maximum: float = math.inf  # largest physically possible value (SI)
@@ -101,6 +101,12 @@ cor_tangential        | dimensionless    | output | any  | tangential COR e_t of
 max_force             | force            | output | >= 0 | peak normal contact force
 max_deflection        | length           | output | >= 0 | maximum interference d_m
 permanent_deformation | length           | output | >= 0 | residual interference d_r
+jacobian_normal_x     | dimensionless    | check  | any  | contact Jacobian, normal row: d(normal velocity of the contact point, away from the flat)/d(velocity_x)
+jacobian_normal_y     | dimensionless    | check  | any  | contact Jacobian, normal row: d(normal velocity of the contact point)/d(velocity_y)
+jacobian_normal_angular | length         | check  | any  | contact Jacobian, normal row: d(normal velocity of the contact point)/d(angular velocity)
+jacobian_tangent_x    | dimensionless    | check  | any  | contact Jacobian, tangent row: d(velocity of the contact point along the flat)/d(velocity_x)
+jacobian_tangent_y    | dimensionless    | check  | any  | contact Jacobian, tangent row: d(velocity of the contact point along the flat)/d(velocity_y)
+jacobian_tangent_angular | length        | check  | any  | contact Jacobian, tangent row: d(velocity of the contact point along the flat)/d(angular velocity)
 """  # noqa: E501
 
 
@@ -185,6 +191,9 @@ class ExperimentData:
     - `inputs`: quantity -> array of shape ``(n,)``;
     - `outputs`: quantity -> array ``(n,)``, NaN where a row did not measure it;
     - `sigmas`: quantity -> array ``(n,)`` (only where uncertainty columns exist);
+    - `checks`: quantity -> array ``(n,)``, NaN where empty: columns the model
+      is checked against before a fit (a planar body's contact Jacobian rows),
+      never used as inputs;
     - `provenance`: the ``#`` lines before the header; `path`: the file.
     - `lines`: the line number in the file of each row, shape ``(n,)``: every
       message, residual file and plot names a row by it.
@@ -198,6 +207,7 @@ class ExperimentData:
     path: str
     columns: dict[str, Column]
     lines: np.ndarray | None = None
+    checks: dict[str, np.ndarray] = dataclasses.field(default_factory=dict)
 
     @property
     def n(self) -> int:
@@ -207,7 +217,14 @@ class ExperimentData:
 
 # Quantities whose sign is a sense of rotation: a file that declares
 # clockwise-positive angles has them negated on reading.
-_SIGNED_ANGLES = ("orientation", "angular_velocity_before", "angular_velocity")
+_SIGNED_ANGLES = (
+    "orientation",
+    "angular_velocity_before",
+    "angular_velocity",
+    # d(velocity)/d(angular velocity): the sign of the angular velocity's
+    "jacobian_normal_angular",
+    "jacobian_tangent_angular",
+)
 
 
 def _clockwise(provenance: list[str], path: str) -> bool:
@@ -336,18 +353,19 @@ def load_experiments(path: str | os.PathLike) -> ExperimentData:
             f"{path}, column 'scene': one scene per file, found {sorted(scenes)}; "
             "split the file by scene"
         )
-    inputs, outputs, sigmas = {}, {}, {}
+    inputs, outputs, sigmas, checks = {}, {}, {}, {}
     for j, col in columns.items():
         arr = np.asarray(values[j], dtype=np.float64) * col.factor
+        role = QUANTITIES[col.quantity].role
         if col.is_sigma:
             sigmas[col.quantity] = arr
-        elif QUANTITIES[col.quantity].role == "input":
-            inputs[col.quantity] = arr
         else:
-            outputs[col.quantity] = arr
+            {"input": inputs, "output": outputs, "check": checks}[role][
+                col.quantity
+            ] = arr
     if _clockwise(provenance, path):
         for q in _SIGNED_ANGLES:
-            for group in (inputs, outputs):
+            for group in (inputs, outputs, checks):
                 if q in group:
                     group[q] = -group[q]
     line_numbers = np.asarray([lineno for lineno, _ in rows])
@@ -383,6 +401,7 @@ def load_experiments(path: str | os.PathLike) -> ExperimentData:
         path=path,
         columns={c.header: c for c in columns.values()},
         lines=line_numbers,
+        checks=checks,
     )
 
 
@@ -425,8 +444,8 @@ def _cell(text: str, col: Column, path: str, lineno: int) -> float:
     text = text.strip()
     q = QUANTITIES[col.quantity]
     if not text:
-        if q.role == "output":
-            return math.nan  # not measured in this row
+        if q.role != "input":
+            return math.nan  # not measured (or not checked) in this row
         raise DataError(f"{where}: empty, but an input needs a value in every row")
     x = finite_number(text, where)
     if q.nonnegative and x < 0:

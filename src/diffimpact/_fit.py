@@ -386,7 +386,7 @@ def fit(
             f"{data.path} holds {data.scene!r} impacts, but the experiment's scene "
             f"is {spec.name!r}"
         )
-    check_rows(experiment, data.inputs, data.path, data.lines)
+    check_rows(experiment, data.inputs, data.path, data.lines, data.checks)
 
     start, bounds = dict(start or {}), dict(bounds or {})
     for d, what in ((start, "start"), (bounds, "bounds")):

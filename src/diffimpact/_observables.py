@@ -18,6 +18,7 @@ from collections.abc import Callable
 
 import equinox as eqx
 import jax.numpy as jnp
+import numpy as np
 
 from ._checks import as_float
 from ._data import QUANTITIES, DataError, parse_column
@@ -368,10 +369,12 @@ def with_inputs(experiment: Experiment, inputs: dict) -> Experiment:
 
 
 def check_rows(
-    experiment: Experiment, inputs: dict, path: str = "data", lines=None
+    experiment: Experiment, inputs: dict, path: str = "data", lines=None, checks=None
 ) -> None:
     """Validate every row's scene eagerly (before any solve) with the scene's own
-    checks; raise a ValueError naming the row and the scene's message."""
+    checks; raise a ValueError naming the row and the scene's message.
+    ``checks``: a file's check columns (`ExperimentData.checks`), compared with
+    the model row by row (`check_jacobian_rows`)."""
     spec = scene_spec(experiment.scene)
     unknown = [q for q in inputs if q not in spec.inputs]
     if unknown:
@@ -386,12 +389,65 @@ def check_rows(
             "(with units, e.g. 'drop_height_m', 'angle_deg')"
         )
     n = len(next(iter(inputs.values())))
+    scenes = []
     for i in range(n):
         fields = {spec.inputs[q]: float(v[i]) for q, v in inputs.items()}
         try:
-            dataclasses.replace(experiment.scene, **fields)
+            scenes.append(dataclasses.replace(experiment.scene, **fields))
         except ValueError as err:
             raise ValueError(f"{path}, {row_label(lines, i)}: {err}") from None
+    if checks:
+        check_jacobian_rows(scenes, checks, path, lines)
+
+
+# A file's contact Jacobian agrees with the shape's when every component is
+# within 1 % (the angular ones relative to the body's largest lever arm):
+# tracking data derive their Jacobians from tracked poses, good to about
+# that; a wrong sign convention, centre of mass or shape is off by far more.
+JACOBIAN_TOLERANCE = 1e-2
+_JACOBIAN = {
+    "jacobian_normal_x": (0, 0),
+    "jacobian_normal_y": (0, 1),
+    "jacobian_normal_angular": (0, 2),
+    "jacobian_tangent_x": (1, 0),
+    "jacobian_tangent_y": (1, 1),
+    "jacobian_tangent_angular": (1, 2),
+}
+
+
+def check_jacobian_rows(scenes, checks: dict, path: str, lines) -> None:
+    """Compare a file's contact-Jacobian rows with the ones the scene's shape
+    gives at each row's state; a disagreement is a `DataError` naming the rows
+    (never used in place of the shape's)."""
+    if not hasattr(scenes[0], "contact_jacobian"):
+        raise DataError(
+            f"{path}: contact Jacobian columns {sorted(checks)} apply to a "
+            f"PlanarBody; {type(scenes[0]).__name__} has none"
+        )
+    bad = []
+    for i, scene in enumerate(scenes):
+        rows = np.asarray(jnp.stack(scene.contact_jacobian()))
+        lever = float(scene.shape.farthest(jnp.stack([scene.com_x, scene.com_y])))
+        for q, values in checks.items():
+            given = values[i]
+            if not np.isfinite(given):
+                continue
+            model = rows[_JACOBIAN[q]]
+            scale = lever if q.endswith("angular") else 1.0
+            if abs(given - model) > JACOBIAN_TOLERANCE * scale:
+                bad.append((i, q, given, model))
+    if bad:
+        listed = "; ".join(
+            f"{row_label(lines, i)}: {q} = {g:.6g}, the shape gives {m:.6g}"
+            for i, q, g, m in bad[:5]
+        )
+        more = f" (and {len(bad) - 5} more)" if len(bad) > 5 else ""
+        raise DataError(
+            f"{path}: the file's contact Jacobian disagrees with the body's shape "
+            f"at the given states: {listed}{more}. Check the angle convention "
+            "('# angles: clockwise'), the centre of mass and the shape; the "
+            "normal row is the contact point's velocity away from the flat"
+        )
 
 
 def row_label(lines, i: int) -> str:

@@ -228,6 +228,16 @@ class PlanarBody(AbstractPlanarScene):
             height=None,
         )
 
+    def contact_jacobian(self):
+        """The contact Jacobian's rows at first contact, as tracking data give
+        them: ``(n, t)`` with ``n . (v_x, v_y, omega)`` the contact point's
+        velocity normal to the flat, away from it (``-J_n``), and ``t . (v_x,
+        v_y, omega)`` its velocity along the flat (``J_t``) (S-11)."""
+        body = self.at_first_contact()
+        q0, _ = body.initial_state()
+        _, j_n, j_t = body.kinematics(q0)
+        return -j_n, j_t
+
     def _lever(self, theta):
         """``(r, rho)``: the contact point from the centre of mass (world frame)
         and the boundary's radius of curvature there, at angle ``theta``."""
