@@ -37,12 +37,14 @@ def _states(n, seed):
     }
 
 
-def _write(path, experiment, states):
+def _write(path, experiment, states, checked=None):
+    """The measurements ``experiment`` predicts from ``states``, written with
+    the states (and the ``checked`` columns, e.g. contact Jacobians)."""
     rows = [
         dict(zip(states, r, strict=True)) for r in zip(*states.values(), strict=True)
     ]
     out = [di.predict(experiment, row) for row in rows]
-    columns = dict(states)
+    columns = {**states, **(checked or {})}
     for key, column in MEASURED.items():
         columns[column] = np.array([float(o[key]) for o in out])
     di.write_experiments(path, columns)
@@ -155,10 +157,11 @@ def test_diverging_sensitivities_are_named(tmp_path):
 
 
 def _with_jacobian(states, flip=1.0):
-    """``states`` plus the contact Jacobian columns the body's shape gives
-    (angular parts times ``flip``), and energetic-law measurements."""
+    """The energetic law that makes the data, and the contact Jacobian
+    columns the body's shape gives at ``states`` (angular parts times
+    ``flip``)."""
     truth = di.Experiment(BODY, di.RigidContact(0.7, "energetic"), di.Friction(0.3))
-    cols = dict(states)
+    cols = {}
     rows = []
     for i in range(len(states["orientation_deg"])):
         scene = dataclasses.replace(
@@ -183,19 +186,6 @@ def _with_jacobian(states, flip=1.0):
     return truth, cols
 
 
-def _write_columns(path, experiment, columns, provenance=""):
-    states = {k: v for k, v in columns.items() if not k.startswith("jacobian")}
-    rows = [
-        dict(zip(states, r, strict=True)) for r in zip(*states.values(), strict=True)
-    ]
-    out = [di.predict(experiment, row) for row in rows]
-    columns = dict(columns)
-    for key, column in MEASURED.items():
-        columns[column] = np.array([float(o[key]) for o in out])
-    di.write_experiments(path, columns, provenance=provenance)
-    return path
-
-
 def test_contact_jacobian_rows_are_checked_against_the_shape(tmp_path):
     """A file's contact Jacobian rows that agree with the shape pass (the fit
     runs); the same rows with the angular parts of the other sense of
@@ -203,14 +193,14 @@ def test_contact_jacobian_rows_are_checked_against_the_shape(tmp_path):
     states = _states(12, 4)
     truth, good = _with_jacobian(states)
     start = di.Experiment(BODY, di.RigidContact(0.5, "energetic"), di.Friction(0.1))
-    path = _write_columns(tmp_path / "good.csv", truth, good)
+    path = _write(tmp_path / "good.csv", truth, states, good)
     assert di.load_experiments(path).checks.keys() == {
         "jacobian_normal_x", "jacobian_normal_y", "jacobian_normal_angular",
         "jacobian_tangent_x", "jacobian_tangent_y", "jacobian_tangent_angular",
     }  # fmt: skip
     np.testing.assert_allclose(di.fit(path, start, ["mu", "cor"]).values, [0.3, 0.7])
     _, flipped = _with_jacobian(states, flip=-1.0)
-    path = _write_columns(tmp_path / "flipped.csv", truth, flipped)
+    path = _write(tmp_path / "flipped.csv", truth, states, flipped)
     with pytest.raises(di.DataError, match=r"disagrees with the body's shape.*line 3"):
         di.fit(path, start, ["mu", "cor"])
 
@@ -219,10 +209,11 @@ def test_clockwise_files_flip_the_jacobian_too(tmp_path):
     """A clockwise-positive file (angles, spins and the Jacobian's angular
     parts all of the other sense) checks out once it says so."""
     states = _states(6, 5)
-    truth, cols = _with_jacobian(states)
-    path = _write_columns(tmp_path / "ccw.csv", truth, cols)
+    truth, jacobian = _with_jacobian(states)
+    path = _write(tmp_path / "ccw.csv", truth, states, jacobian)
     data = di.load_experiments(path)
-    mirrored = {k: v for k, v in cols.items()}
+    cols = {**states, **jacobian}
+    mirrored = dict(cols)
     for k in ("orientation_deg", "angular_velocity_before_rad_s"):
         mirrored[k] = -cols[k]
     for k in ("jacobian_normal_angular_mm", "jacobian_tangent_angular_mm"):
