@@ -227,3 +227,18 @@ def test_clockwise_files_flip_the_jacobian_too(tmp_path):
         np.testing.assert_allclose(back.checks[q], data.checks[q], rtol=1e-12)
     start = di.Experiment(BODY, di.RigidContact(0.5, "energetic"), di.Friction(0.1))
     np.testing.assert_allclose(di.fit(cw, start, ["mu", "cor"]).values, [0.3, 0.7])
+
+
+def test_jacobian_columns_need_a_planar_body(tmp_path):
+    path = tmp_path / "drops.csv"
+    di.write_experiments(
+        path,
+        {
+            "impact_velocity_m_s": np.array([1.0, 2.0]),
+            "jacobian_normal_y": np.array([1.0, 1.0]),
+            "cor_normal": np.array([0.8, 0.7]),
+        },
+    )
+    experiment = di.Experiment.default("normal_impact")
+    with pytest.raises(di.DataError, match="contact_jacobian.*NormalImpact"):
+        di.fit(path, experiment, ["yield_strength"])

@@ -419,15 +419,16 @@ def check_jacobian_rows(scenes, checks: dict, path: str, lines) -> None:
     """Compare a file's contact-Jacobian rows with the ones the scene's shape
     gives at each row's state; a disagreement is a `DataError` naming the rows
     (never used in place of the shape's)."""
-    if not hasattr(scenes[0], "contact_jacobian"):
+    if not all(hasattr(scenes[0], m) for m in ("contact_jacobian", "largest_lever")):
         raise DataError(
-            f"{path}: contact Jacobian columns {sorted(checks)} apply to a "
-            f"PlanarBody; {type(scenes[0]).__name__} has none"
+            f"{path}: contact Jacobian columns {sorted(checks)} apply to a scene "
+            "with contact_jacobian() and largest_lever(), as PlanarBody; "
+            f"{type(scenes[0]).__name__} has not"
         )
     bad = []
     for i, scene in enumerate(scenes):
         rows = np.asarray(jnp.stack(scene.contact_jacobian()))
-        lever = float(scene.shape.farthest(jnp.stack([scene.com_x, scene.com_y])))
+        lever = float(scene.largest_lever())
         for q, values in checks.items():
             given = values[i]
             if not np.isfinite(given):

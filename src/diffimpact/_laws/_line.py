@@ -106,6 +106,11 @@ class LineContact(AbstractNormalLaw):
         c = 4.0 * a * contact.effective_radius
         if self.cor is None:
             return BoundLineContact(modulus=a, log_constant=c)
+        if damping_ratio is None:
+            raise ValueError(
+                "LineContact(cor=...).bind needs `damping_ratio`, the calibrated "
+                "zeta = diffimpact.damping_ratio(cor) (simulate passes it)"
+            )
         return BoundDampedLineContact(
             modulus=a, log_constant=c, damping=damping_ratio / approach_velocity
         )

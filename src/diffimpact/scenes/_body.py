@@ -102,7 +102,7 @@ class PlanarBody(AbstractPlanarScene):
 
     def _checks(self):
         com = jnp.stack([self.com_x, self.com_y])
-        reach = self.shape.farthest(com)
+        reach = self.largest_lever()
         incline = self.incline
         return [
             *positive_fields(self, {"mass": "kg", "inertia": "kg m^2"}),
@@ -237,6 +237,11 @@ class PlanarBody(AbstractPlanarScene):
         q0, _ = body.initial_state()
         _, j_n, j_t = body.kinematics(q0)
         return -j_n, j_t
+
+    def largest_lever(self):
+        """The farthest point of the shape from the centre of mass [m]: the
+        scale of the contact Jacobian's angular components."""
+        return self.shape.farthest(jnp.stack([self.com_x, self.com_y]))
 
     def _lever(self, theta):
         """``(r, rho)``: the contact point from the centre of mass (world frame)
