@@ -366,3 +366,35 @@ def test_a_body_in_the_flat_is_named_under_jit_too():
         spin(0.001)
     with pytest.raises(ValueError, match="velocity_y"):
         dataclasses.replace(ELLIPSE, height=0.1, velocity_y=0.5, gravity=0.0)
+
+
+def test_a_height_in_a_row_sets_the_flight():
+    """A data row's `height` sets the optional field of a template given at
+    contact (the loader's path, `predict` with inputs): the same impact as
+    the body given before the contact."""
+    earlier = _earlier(ELLIPSE, 0.01)
+    row = {
+        "orientation": float(earlier.angle),
+        "velocity_x": float(earlier.velocity_x),
+        "velocity_y": float(earlier.velocity_y),
+        "angular_velocity_before": float(earlier.angular_velocity),
+        "height": float(earlier.height),
+    }
+    experiment = di.Experiment(
+        ELLIPSE, di.RigidContact(0.6, "energetic"), di.Friction(0.25)
+    )
+    out = di.predict(experiment, row)
+    ra = di.rigid_impact(ELLIPSE, 0.25, 0.6, "energetic")
+    assert (
+        abs(float(out["angular_velocity"]) - float(ra["angular_velocity_after"])) < 1e-9
+    )
+
+
+def test_touching_and_leaving_is_not_an_impact():
+    """At exactly its touching height, moving away: refused, not an impact at
+    t = 0 (a frame at contact must show the contact point approaching)."""
+    r, _ = ELLIPSE._lever(ELLIPSE.angle)
+    with pytest.raises(ValueError, match="touches the flat"):
+        dataclasses.replace(
+            ELLIPSE, height=float(-r[1]), velocity_y=1.0, angular_velocity=0.0
+        )

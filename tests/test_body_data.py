@@ -199,6 +199,12 @@ def test_contact_jacobian_rows_are_checked_against_the_shape(tmp_path):
         "jacobian_tangent_x", "jacobian_tangent_y", "jacobian_tangent_angular",
     }  # fmt: skip
     np.testing.assert_allclose(di.fit(path, start, ["mu", "cor"]).values, [0.3, 0.7])
+    # By hand: at angle 0 the lowest point of the ellipse is (0, -b), seen from
+    # the centre of mass at (0.005, 0): r = (-0.005, -b); the contact point's
+    # velocity away from the flat is v_y + r_x w, along it v_x - r_y w.
+    n, t = BODY.contact_jacobian()
+    np.testing.assert_allclose(n, [0.0, 1.0, -0.005], atol=1e-15)
+    np.testing.assert_allclose(t, [1.0, 0.0, B], atol=1e-15)
     _, flipped = _with_jacobian(states, flip=-1.0)
     path = _write(tmp_path / "flipped.csv", truth, states, flipped)
     with pytest.raises(di.DataError, match=r"disagrees with the body's shape.*line 3"):

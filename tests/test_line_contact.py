@@ -147,3 +147,22 @@ def test_planar_body_takes_the_line_contact():
     )
     assert damped.result == di.RESULTS.successful
     assert 0.4 < float(damped.cor_newton) < 0.8
+
+
+def test_a_light_slow_impact_under_gravity_has_its_true_depth():
+    """A 1 g body at 1 um/s under gravity: the energy balance's root is found
+    from the right (the start is doubled until it is), not the spurious
+    negative one; the line law with compliant friction is refused."""
+    mat = steel(jnp.inf)
+    sc = di.scenes.NormalImpact(1e-3, RADIUS, mat, mat, 1e-6)
+    r = di.simulate(sc, di.LineContact(LENGTH), "smooth")
+    assert r.result == di.RESULTS.successful
+    assert float(r.max_deflection) > 0
+    body = di.scenes.PlanarBody(
+        0.05, 0.05 * (0.03**2 + 0.015**2) / 4, di.scenes.Ellipse(0.03, 0.015),
+        mat, mat, angle=0.3, velocity_x=0.2, velocity_y=-2.0,
+    )  # fmt: skip
+    with pytest.raises(ValueError, match="line contact"):
+        di.simulate(
+            body, di.LineContact(LENGTH), friction=di.Friction(0.2, compliant=True)
+        )

@@ -272,16 +272,23 @@ def _energy_max_deflection(problem, bound):
         bound, m, g, v0 = args
         return bound.elastic_work(d) - m * g * d - 0.5 * m * v0**2
 
-    # Start right of the root of the power law (h convex): Newton then
-    # converges monotonically; from the scale's estimate for other laws.
+    # Start right of the root (h is convex): Newton then converges
+    # monotonically.  For a power law the scale's estimate is right of it; for
+    # another law (the line contact) it is doubled until it is.
     d_free = ((n + 1.0) * 0.5 * m * v0**2 / k) ** (1.0 / (n + 1.0))
     d_static = (2.0 * jnp.abs(m * g) / k) ** (1.0 / n)
+    args = (bound, m, g, v0)
+    start = d_free + d_static
+    if not bound.power_law:
+        start = jax.lax.stop_gradient(
+            jax.lax.while_loop(lambda d: h(d, args) < 0, lambda d: 2.0 * d, start)
+        )
 
     def dh(d, args):
         bound, m, g, _ = args
         return bound.loading_force(d, jnp.zeros_like(d), 0) - m * g
 
-    return newton_root(h, d_free + d_static, (bound, m, g, v0), fprime=dh)
+    return newton_root(h, start, args, fprime=dh)
 
 
 def _solve_smooth(problem, bound, settings, n_history):

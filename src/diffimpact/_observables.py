@@ -365,6 +365,8 @@ def with_inputs(experiment: Experiment, inputs: dict) -> Experiment:
         lambda e: [w(e) for w in where],
         experiment,
         [as_float(inputs[q]) for q in names],
+        # an optional field left at None (a planar body's height) is set too
+        is_leaf=lambda x: x is None,
     )
 
 

@@ -203,6 +203,13 @@ def planar_setup(scene, law, friction, settings):
     compliant = has_friction and friction.compliant
     shear_stiffness = None
     if compliant:
+        if not bound.power_law:
+            raise ValueError(
+                "`Friction(compliant=True)` puts Mindlin's spring 8 G* a of a "
+                "circular (point) contact in series with slip; "
+                f"{type(law).__name__} is a line contact: use Friction(mu) "
+                "(tangentially rigid) with it"
+            )
         if contact.shear_modulus is None:
             raise ValueError(
                 "`Friction(compliant=True)` needs the contact's shear modulus: "

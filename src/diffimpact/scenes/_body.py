@@ -149,11 +149,12 @@ class PlanarBody(AbstractPlanarScene):
                 )
             ]
         falls = (self.velocity_y < 0) | (self.gravity * jnp.cos(self.incline) > 0)
+        gap = self.gap(0.0)
         return [
             finite(self.velocity_y, "PlanarBody.velocity_y"),
             check(
                 self.height,
-                jnp.isfinite(self.height) & (self.gap(0.0) >= 0),
+                jnp.isfinite(self.height) & (gap >= 0),
                 "`PlanarBody.height` (of the centre of mass above the flat [m]) "
                 "must be at least the depth of the body's lowest point below "
                 "its centre of mass at the given angle: the body overlaps the "
@@ -164,6 +165,15 @@ class PlanarBody(AbstractPlanarScene):
                 falls,
                 "`PlanarBody.velocity_y`: without gravity the body must move "
                 "towards the flat (< 0) to reach it from `height`",
+            ),
+            # At exactly the touching height the state is the first contact:
+            # the contact point must approach (a frame that shows the body
+            # leaving the flat is not before an impact).
+            check(
+                self.velocity_y,
+                (gap > 0) | (self._approach_speed() > 0),
+                "`PlanarBody.height`, `velocity_y`: at the given height the body "
+                "touches the flat, and its contact point must approach it there",
             ),
         ]
 
