@@ -7,8 +7,6 @@ import jax.numpy as jnp
 
 from ._calibrate import damping_ratio
 from ._laws._base import MAX_DEPTH, AbstractBoundLaw, AbstractNormalLaw
-from ._laws._dissipative import _AbstractDampedHertz
-from ._laws._line import LineContact
 from ._normal_solve import reference_length
 from ._result import RESULTS
 from .scenes._base import NormalProblem
@@ -19,25 +17,16 @@ def _bind(
 ) -> AbstractBoundLaw:
     """``law`` bound to ``problem``; ``zeta``: a calibrated law's damping ratio
     when already computed (it does not depend on the problem)."""
-    if _calibrated(law):
+    if law.calibration() is not None:
         if zeta is None:
             zeta = _damping_ratio(law)
         return law.bind(problem.contact, problem.velocity, zeta)
     return law.bind(problem.contact, problem.velocity)
 
 
-def _calibrated(law) -> bool:
-    """Whether the law's damping is the exact root for its ``cor``."""
-    if isinstance(law, LineContact):
-        return law.cor is not None
-    return isinstance(law, _AbstractDampedHertz) and law.calibrated
-
-
 def _damping_ratio(law):
-    # The restitution of F_el(d) (1 + D d_dot) depends on zeta = D v0 alone,
-    # whatever the elastic law (docs/physics/contact.md, L-4): the power
-    # law's root serves the line contact too.
-    return damping_ratio(law.cor, getattr(law, "exponent", 1.5))
+    """The exact damping ratio of a calibrated law (`AbstractNormalLaw.calibration`)."""
+    return damping_ratio(*law.calibration())
 
 
 # Depth, as a fraction of the effective radius, of the stand-in impact solved
@@ -59,7 +48,7 @@ def within_model(law, problem: NormalProblem, stand_in: bool = True):
     not slowed or poisoned by one bad row."""
     # A calibrated law's damping ratio (a root solve through ODE solves) does
     # not depend on the speed: computed once for both bindings.
-    zeta = _damping_ratio(law) if _calibrated(law) else None
+    zeta = _damping_ratio(law) if law.calibration() is not None else None
     bound = _bind(law, problem, zeta)
     k, n = bound.scale()
     m, v0 = problem.mass, problem.velocity

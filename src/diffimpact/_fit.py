@@ -305,7 +305,7 @@ def _predictions(problem: _Problem, u):
 
 @eqx.filter_jit
 def _jacobian(problem: _Problem, u):
-    return jax.jacfwd(problem.residuals)(u)
+    return _value_and_jacobian(u, problem)[0]
 
 
 _init = eqx.filter_jit(lambda solver, *args: solver.init(*args))

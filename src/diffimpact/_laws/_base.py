@@ -103,6 +103,12 @@ class AbstractSpringBoundLaw(AbstractBoundLaw):
 class AbstractNormalLaw(AbstractValidated):
     """A normal contact force law: ``F_n(d, d_dot) >= 0``, zero for ``d <= 0``."""
 
+    def calibration(self):
+        """``(cor, exponent)`` when the law's damping is the exact root for a
+        target ``cor`` (`diffimpact.damping_ratio`; the binding then passes
+        that ``zeta`` to `bind`), else None."""
+        return None
+
     @abc.abstractmethod
     def bind(self, contact: ContactProperties, approach_velocity) -> AbstractBoundLaw:
         """Compute the pair-dependent constants for one impact."""

@@ -51,6 +51,9 @@ class _AbstractDampedHertz(AbstractNormalLaw):
             out.append(positive(self.stiffness, f"{name}.stiffness", "N/m^n"))
         return out
 
+    def calibration(self):
+        return (self.cor, self.exponent) if self.calibrated else None
+
     @abc.abstractmethod
     def damping_ratio_formula(self):
         """Dimensionless damping ``zeta = D v0`` from the law's own formula."""

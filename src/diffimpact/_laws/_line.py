@@ -99,6 +99,11 @@ class LineContact(AbstractNormalLaw):
             )
         return out
 
+    def calibration(self):
+        # The restitution of F_el(d) (1 + D d_dot) depends on zeta = D v0
+        # alone, whatever the elastic law (L-4): the power law's root serves.
+        return None if self.cor is None else (self.cor, 1.5)
+
     def bind(self, contact: ContactProperties, approach_velocity, damping_ratio=None):
         """``damping_ratio``: ``zeta = D v0`` of the damped law (the binding
         passes `diffimpact.damping_ratio` of `cor`)."""
