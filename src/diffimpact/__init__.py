@@ -47,6 +47,15 @@ from ._materials import effective_radius as effective_radius
 from ._multi import simulate_span as simulate_span
 from ._observables import Experiment as Experiment
 from ._observables import predict as predict
+from ._posterior import ConvergenceWarning as ConvergenceWarning
+from ._posterior import PosteriorResult as PosteriorResult
+from ._posterior import posterior as posterior
+from ._priors import AbstractPrior as AbstractPrior
+from ._priors import LogNormalPrior as LogNormalPrior
+from ._priors import LogUniformPrior as LogUniformPrior
+from ._priors import NormalPrior as NormalPrior
+from ._priors import UniformPrior as UniformPrior
+from ._priors import default_prior as default_prior
 from ._result import RESULTS as RESULTS
 from ._result import History as History
 from ._result import ImpactResult as ImpactResult

@@ -362,6 +362,57 @@ def fit(
         )
     if solver not in _SOLVERS:
         raise ValueError(f"`solver` must be one of {_SOLVERS}, got {solver!r}")
+    data, problem, u0, x0, absolute = prepare(
+        data, experiment, free, start, bounds, outputs, chunk_size
+    )
+    free = problem.names
+    # Least squares needs the Jacobian of many residuals w.r.t. a few
+    # parameters: forward mode (one JVP per parameter) is the cheap way, and
+    # diffrax differentiates a solve in forward mode only with ForwardMode.
+    # The optax minimisers take gradients of a scalar loss: reverse mode.
+    forward = _with_adjoint(problem, diffrax.ForwardMode())
+    t0 = time.perf_counter()
+    bar = _Progress(max_steps, solver) if progress else None
+    if bar:  # from the first second: compiling takes most of a first run
+        bar.message(
+            f"compiling the model for {len(free)} parameter(s) and "
+            f"{int(problem.mask.sum())} measurements..."
+        )
+    # Every row must be predictable at the start: name the ones that are not
+    # before minutes of iterations.
+    _check_predictions(forward, u0, data, "at the start values")
+    with _derivatives_named(problem.experiment.settings):
+        if solver in ("levenberg-marquardt", "gauss-newton"):
+            u, steps, converged = _least_squares(
+                forward, u0, solver, max_steps, rtol, atol, bar
+            )
+        else:
+            u, steps, converged = _minimise(
+                problem, u0, solver, max_steps, rtol, atol, learning_rate, bar
+            )
+    if bar:
+        bar.close()
+        bar.message("covariance and residuals at the fitted values...", end="\n")
+    _check_predictions(forward, u, data, "at the fitted values")
+    return _result(
+        forward,
+        data,
+        u,
+        steps,
+        converged,
+        solver,
+        time.perf_counter() - t0,
+        x0,
+        absolute,
+        problem.experiment.settings,  # the user's (the fit used forward mode)
+    )
+
+
+def prepare(data, experiment, free, start, bounds, outputs, chunk_size):
+    """What `fit` and `posterior` share: the data loaded and checked, the free
+    parameters resolved with their transforms, and the residual problem.
+    Returns ``(data, problem, u0, x0, absolute)``; every check happens here,
+    before any solve."""
     if isinstance(free, str):
         free = [f.strip() for f in free.split(",") if f.strip()]
     free = tuple(free)
@@ -434,46 +485,7 @@ def fit(
     # The unconstrained point of the start values (0 for the log and affine
     # maps, not for bounded ones: a sigmoid's 0 is the middle of its bounds).
     u0 = jnp.asarray([t.inverse(t.start) for t in transforms], dtype=float)
-    # Least squares needs the Jacobian of many residuals w.r.t. a few
-    # parameters: forward mode (one JVP per parameter) is the cheap way, and
-    # diffrax differentiates a solve in forward mode only with ForwardMode.
-    # The optax minimisers take gradients of a scalar loss: reverse mode.
-    forward = _with_adjoint(problem, diffrax.ForwardMode())
-    t0 = time.perf_counter()
-    bar = _Progress(max_steps, solver) if progress else None
-    if bar:  # from the first second: compiling takes most of a first run
-        bar.message(
-            f"compiling the model for {len(free)} parameter(s) and "
-            f"{int(problem.mask.sum())} measurements..."
-        )
-    # Every row must be predictable at the start: name the ones that are not
-    # before minutes of iterations.
-    _check_predictions(forward, u0, data, "at the start values")
-    with _derivatives_named(problem.experiment.settings):
-        if solver in ("levenberg-marquardt", "gauss-newton"):
-            u, steps, converged = _least_squares(
-                forward, u0, solver, max_steps, rtol, atol, bar
-            )
-        else:
-            u, steps, converged = _minimise(
-                problem, u0, solver, max_steps, rtol, atol, learning_rate, bar
-            )
-    if bar:
-        bar.close()
-        bar.message("covariance and residuals at the fitted values...", end="\n")
-    _check_predictions(forward, u, data, "at the fitted values")
-    return _result(
-        forward,
-        data,
-        u,
-        steps,
-        converged,
-        solver,
-        time.perf_counter() - t0,
-        np.asarray(x0),
-        absolute,
-        problem.experiment.settings,  # the user's (the fit used forward mode)
-    )
+    return data, problem, u0, np.asarray(x0), absolute
 
 
 @contextlib.contextmanager
@@ -814,13 +826,12 @@ class _Progress:
         sys.stderr.flush()
         self.shown = 0 if end else len(line)
 
-    def update(self, k, cost):
+    def update(self, k, cost, text=None):
         filled = int(self.width * min(k, self.total) / self.total)
         bar = "#" * filled + "." * (self.width - filled)
         dt = time.perf_counter() - self.t0
-        self._write(
-            f"{self.label} [{bar}] step {k}/{self.total} cost {cost:.4g} ({dt:.1f} s)"
-        )
+        what = f"cost {cost:.4g}" if text is None else text
+        self._write(f"{self.label} [{bar}] step {k}/{self.total} {what} ({dt:.1f} s)")
 
     def close(self):
         sys.stderr.write("\n")  # keep the last bar on screen

@@ -53,6 +53,18 @@ class Transform(eqx.Module):
             )
         return x0 + s * u
 
+    def log_abs_det(self, u):
+        """``log |dx/du|``: turns a density in ``x`` into one in ``u``."""
+        lo, hi, s = self.lower, self.upper, self.scale
+        kind = self.kind
+        if kind == "log":
+            return math.log(self.start) + u
+        if kind == "sigmoid":
+            return math.log(hi - lo) + jax.nn.log_sigmoid(u) + jax.nn.log_sigmoid(-u)
+        if kind == "softplus":
+            return math.log(s) + jax.nn.log_sigmoid(u)
+        return math.log(s) + 0.0 * u
+
     def inverse(self, x: float) -> float:
         lo, hi, x0, s = self.lower, self.upper, self.start, self.scale
         kind = self.kind
