@@ -768,10 +768,11 @@ def _result(
             f"{100 * ratio:.0f} % of its prior spread, so the draws show the prior "
             "there; fix one of these parameters or add measurements sensitive to it"
         )
-    for msg in notes:
-        warnings.warn(msg, ConvergenceWarning, stacklevel=3)
+    # the cause first: an undetermined combination also spoils the mixing
     for msg in weak:
         warnings.warn(msg, IdentifiabilityWarning, stacklevel=3)
+    for msg in notes:
+        warnings.warn(msg, ConvergenceWarning, stacklevel=3)
     flat = x.reshape(-1, p)
     return PosteriorResult(
         names=names,
@@ -794,6 +795,6 @@ def _result(
         num_warmup=num_warmup,
         seed=seed,
         noise=noise,
-        warnings=tuple(notes + weak),
+        warnings=tuple(weak + notes),
         seconds=seconds,
     )
