@@ -260,3 +260,44 @@ def test_a_bounded_prior_bounds_the_draws(noisy):
 def test_bad_arguments_are_named_before_any_solve(noisy, kwargs, error, match):
     with pytest.raises(error, match=match):
         di.posterior(noisy, "normal_impact", free=["yield_strength"], **kwargs)
+
+
+# --- command line ------------------------------------------------------------
+
+
+def test_cli_posterior_writes_its_files(noisy, tmp_path, capsys):
+    from diffimpact._cli import main
+
+    out = tmp_path / "out"
+    argv = ["fit", str(noisy), "--free", "yield_strength", "--out", str(out)]
+    post = ["--posterior", "--samples", "100", "--warmup", "100", "--chains", "2"]
+    assert main(argv + post + ["--seed", "3", "--no-progress"]) == 0
+    text = capsys.readouterr().out
+    assert "R-hat" in text and "posterior.csv" in text
+    d = __import__("json").loads((out / "posterior.json").read_text())
+    assert d["num_chains"] == 2 and d["seed"] == 3
+    assert d["parameters"]["yield_strength"]["prior"].startswith("lognormal")
+    for f in ("posterior.csv", "corner.png", "predictive.png", "fit.json"):
+        assert (out / f).stat().st_size > 0
+    # a second run refuses before any work, naming what it would overwrite
+    assert main(argv + post) == 2
+    assert "would overwrite" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize(
+    "extra, match",
+    [
+        (["--samples", "100"], "--samples: give with --posterior"),
+        (["--posterior", "--chains", "0"], "--chains must be an integer >= 1"),
+        (["--posterior", "--prior", "mu=uniform:0:1"], "'mu' is not free"),
+        (["--posterior", "--prior", "yield_strength=beta:1:2"], "expected one of"),
+        (["--posterior", "--holdout", "0.3"], "choose one"),
+    ],
+)
+def test_cli_posterior_bad_options_are_named(noisy, tmp_path, capsys, extra, match):
+    from diffimpact._cli import main
+
+    argv = ["fit", str(noisy), "--free", "yield_strength", "--out", str(tmp_path)]
+    assert main(argv + extra) == 2
+    err = capsys.readouterr().err
+    assert match in err and "Traceback" not in err

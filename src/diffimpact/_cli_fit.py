@@ -20,6 +20,7 @@ from ._cli_files import open_new
 
 _OUTPUT_FILES = ("fit.json", "residuals.csv", "fit.png", "loop.png")
 _HOLDOUT_FILES = ("holdout.csv", "holdout.png")
+_POSTERIOR_FILES = ("posterior.csv", "posterior.json", "corner.png", "predictive.png")
 _LAWS = {"jackson-green": "JacksonGreen", "hertz": "Hertz"}
 
 
@@ -88,10 +89,44 @@ def register(sub) -> None:
         "the held-out errors of the model and of the rigid laws",
     )
     p.add_argument(
+        "--posterior",
+        action="store_true",
+        help="also sample the posterior of the free parameters (NUTS)",
+    )
+    p.add_argument(
+        "--samples",
+        type=int,
+        default=None,
+        help="draws per chain kept (with --posterior; default 1000)",
+    )
+    p.add_argument(
+        "--warmup",
+        type=int,
+        default=None,
+        help="warm-up steps per chain (with --posterior; default 1000)",
+    )
+    p.add_argument(
+        "--chains",
+        type=int,
+        default=None,
+        help="chains, run together (with --posterior; default 4)",
+    )
+    p.add_argument(
+        "--prior",
+        action="append",
+        default=[],
+        metavar="NAME=KIND:A:B",
+        help="prior of a free parameter (with --posterior), e.g. mu=uniform:0:1, "
+        "yield_strength=lognormal:4e8:0.5; kinds: normal:MEAN:SD, "
+        "lognormal:MEDIAN:SIGMA, uniform:LOWER:UPPER, loguniform:LOWER:UPPER "
+        "(default: lognormal about the start value, sigma 1)",
+    )
+    p.add_argument(
         "--seed",
         type=int,
         default=None,
-        help="draw of the held-out rows (with --holdout; default 0)",
+        help="draw of the held-out rows (--holdout) or of the chains "
+        "(--posterior); default 0",
     )
     p.add_argument("--out", default=None, help="output folder (default fit-<data>)")
     p.add_argument("--force", action="store_true", help="overwrite outputs in --out")
@@ -125,11 +160,15 @@ def run(args) -> int:
         )
     if args.max_steps < 1:
         raise ValueError(f"--max-steps must be an integer >= 1, got {args.max_steps}")
-    if args.seed is not None and args.holdout is None:
-        raise ValueError("--seed draws the held-out rows: give it with --holdout")
+    if args.seed is not None and args.holdout is None and not args.posterior:
+        raise ValueError(
+            "--seed draws the held-out rows or the chains: give it with --holdout "
+            "or --posterior"
+        )
     if args.holdout is not None and not 0.0 < args.holdout < 1.0:
         raise ValueError(f"--holdout must be a fraction in (0, 1), got {args.holdout}")
-    files = _OUTPUT_FILES + (_HOLDOUT_FILES if args.holdout is not None else ())
+    _check_posterior_options(args)
+    files = _files(args)
     existing = [f for f in files if os.path.exists(os.path.join(out, f))]
     if existing and not args.force:
         raise ValueError(
@@ -221,9 +260,91 @@ def _fit_and_write(args, out) -> int:
     write_residuals(result, os.path.join(out, "residuals.csv"), args.force)
     plot_fit(result, os.path.join(out, "fit.png"), args.force)
     note = plot_loop(result, os.path.join(out, "loop.png"), args.force)
-    files = _OUTPUT_FILES + (_HOLDOUT_FILES if args.holdout is not None else ())
+    if args.posterior:
+        _posterior(args, data, experiment, free, start, bounds, out)
+    files = _files(args)
     print(f"wrote {out}/: {', '.join(files)}" + (f" ({note})" if note else ""))
     return 0
+
+
+def _files(args) -> tuple[str, ...]:
+    return (
+        _OUTPUT_FILES
+        + (_HOLDOUT_FILES if args.holdout is not None else ())
+        + (_POSTERIOR_FILES if args.posterior else ())
+    )
+
+
+def _check_posterior_options(args) -> None:
+    """Sampler options without --posterior, or out of range: named before
+    anything is fitted."""
+    given = [
+        f"--{n}"
+        for n in ("samples", "warmup", "chains")
+        if getattr(args, n) is not None
+    ] + (["--prior"] if args.prior else [])
+    if given and not args.posterior:
+        raise ValueError(f"{', '.join(given)}: give with --posterior")
+    if args.posterior and args.holdout is not None:
+        raise ValueError(
+            "--posterior and --holdout: choose one (the posterior of a held-out "
+            "fit is not what either measures)"
+        )
+    for name, low in (("samples", 20), ("warmup", 20), ("chains", 1)):
+        v = getattr(args, name)
+        if v is not None and v < low:
+            raise ValueError(f"--{name} must be an integer >= {low}, got {v}")
+    if args.seed is not None and args.seed < 0:
+        raise ValueError(f"--seed must be an integer >= 0, got {args.seed}")
+    from diffimpact._priors import parse_prior
+
+    free = {f.strip() for f in args.free.split(",") if f.strip()}
+    for name, text in _pairs(args.prior, "prior").items():
+        if name not in free:
+            raise ValueError(
+                f"--prior {name}=...: {name!r} is not free (--free {args.free})"
+            )
+        parse_prior(text)
+
+
+def _posterior(args, data, experiment, free, start, bounds, out) -> None:
+    """``--posterior``: NUTS after the least-squares fit, four more files."""
+    import diffimpact as di
+
+    options = {
+        k: getattr(args, a)
+        for k, a in (
+            ("num_samples", "samples"),
+            ("num_warmup", "warmup"),
+            ("num_chains", "chains"),
+            ("seed", "seed"),
+        )
+        if getattr(args, a) is not None
+    }
+    print(
+        f"sampling the posterior of {args.free} ({options.get('num_chains', 4)} chains)"
+    )
+    post = di.posterior(
+        data,
+        experiment,
+        free,
+        priors=_pairs(args.prior, "prior"),
+        start=start,
+        bounds=bounds,
+        progress=not args.no_progress,
+        **options,
+    )
+    print(post.summary())
+    post.save(os.path.join(out, "posterior.csv"), args.force)
+    with open_new(os.path.join(out, "posterior.json"), args.force) as fh:
+        json.dump(
+            {"data": os.path.abspath(args.data), **post.to_dict()},
+            fh,
+            indent=2,
+            allow_nan=False,
+        )
+    _save(post.plot_corner(), os.path.join(out, "corner.png"), args.force)
+    _save(post.plot_predictive(), os.path.join(out, "predictive.png"), args.force)
 
 
 def _cross_validate(args, data, experiment, free, own_options, out):
