@@ -301,3 +301,34 @@ def test_cli_posterior_bad_options_are_named(noisy, tmp_path, capsys, extra, mat
     assert main(argv + extra) == 2
     err = capsys.readouterr().err
     assert match in err and "Traceback" not in err
+
+
+def test_the_sampler_never_evaluates_far_outside(noisy):
+    """Beyond |u| = 12 (a factor e^12 from the start) the density drops past
+    the divergence threshold, finitely, without a solve out there."""
+    import equinox as eqx
+
+    from diffimpact._fit import prepare
+    from diffimpact._posterior import _Model
+
+    _, problem, u0, _, _ = prepare(
+        noisy, "normal_impact", ["yield_strength"], None, None, None, None
+    )
+    prior = (di.LogNormalPrior(400e6, 1.0),)
+    model = _Model(problem, jnp.zeros(problem.mask.size, bool), prior, 0)
+    inside = float(model.log_density(jnp.asarray([11.9])))
+    outside = float(model.log_density(jnp.asarray([13.0])))
+    assert math.isfinite(outside) and inside - outside > 1e5
+    g = eqx.filter_grad(lambda u: model.log_density(u))(jnp.asarray([13.0]))
+    assert np.all(np.isfinite(np.asarray(g)))
+
+
+def test_a_plain_number_set_by_tree_at_is_a_parameter(noisy):
+    """`eqx.tree_at` bypasses the converters: a yield strength set as a plain
+    float is still the parameter it names (it once read 'unknown parameter')."""
+    import equinox as eqx
+
+    e = di.Experiment.default("normal_impact")
+    e = eqx.tree_at(lambda e: e.scene.flat.yield_strength, e, 380e6)
+    r = di.fit(noisy, e, free=["yield_strength"])
+    assert r.start[0] == 380e6 and abs(r.values[0] / 400e6 - 1.0) < 0.05

@@ -248,7 +248,10 @@ def resolve_parameter(experiment: Experiment, name: str) -> str:
         value = None
     if value is None and path == "friction.mu_v" and experiment.friction is not None:
         return path  # no viscous term yet: `with_parameters` adds one at 0
-    if value is None or not eqx.is_inexact_array(value):
+    # a plain number is a parameter too (set by `eqx.tree_at`, which bypasses
+    # the modules' converters); `with_parameters` makes it an array
+    number = isinstance(value, int | float) and not isinstance(value, bool)
+    if value is None or not (eqx.is_inexact_array(value) or number):
         known = sorted(spec.parameters) + sorted(_array_fields(experiment.law))
         extra = (
             " (the experiment has no friction)" if path.startswith("friction") else ""
@@ -270,6 +273,13 @@ def with_parameters(experiment: Experiment, paths) -> Experiment:
             experiment,
             as_float(0.0),
             is_leaf=lambda x: x is None,
+        )
+    plain = [p for p in paths if isinstance(get_path(experiment, p), int | float)]
+    if plain:
+        experiment = eqx.tree_at(
+            lambda e: [get_path(e, p) for p in plain],
+            experiment,
+            [as_float(get_path(experiment, p)) for p in plain],
         )
     return experiment
 

@@ -59,12 +59,21 @@ from ._fit import (
     prepare,
 )
 from ._priors import AbstractPrior, default_prior, parse_prior, prior_draws_u
+from ._result import SolverError
 
 _QUANTILES = (0.05, 0.5, 0.95)
 # A data direction whose posterior spread is more than half its prior spread
 # has hardly been narrowed by the data: what is sampled there is the prior.
 _CONTRACTION_MIN = 0.5
 _PRIOR_DRAWS = 4000
+# The sampler's coordinate is kept within |u| <= 12 (a factor e^12 = 1.6e5
+# either side of the start value of a positive parameter, 12 prior sigmas of
+# the default prior): an early warm-up trajectory can fly far out, and there a
+# solve's derivatives can fail (an event whose time derivative vanishes was
+# seen at S_y = 18 kPa and mu = 2e-8 in the ball-prism model).  Beyond the box
+# the density drops past the divergence threshold and the model is not
+# evaluated.
+_U_MAX = 12.0
 _PREDICTIVE_DRAWS = 200
 
 
@@ -258,6 +267,8 @@ class _Model(eqx.Module):
     n_relative: int = eqx.field(static=True)
 
     def log_density(self, u):
+        outside = jnp.sum(jnp.maximum(jnp.abs(u) - _U_MAX, 0.0))
+        u = jnp.clip(u, -_U_MAX, _U_MAX)
         lp = jnp.zeros(())
         for i, (prior, t) in enumerate(
             zip(self.priors, self.problem.transforms, strict=True)
@@ -272,7 +283,7 @@ class _Model(eqx.Module):
         # drop far past the divergence threshold, so that NUTS turns back and
         # counts a divergent transition instead of sampling there.
         failed = jnp.sum(jax.lax.stop_gradient(r) == _FAILED_RESIDUAL)
-        return lp - 1e6 * failed
+        return lp - 1e6 * (failed + outside)
 
 
 class _Carry(NamedTuple):
@@ -553,7 +564,10 @@ def posterior(
         bar.message(f"compiling NUTS over {num_chains} chains...")
     for k0 in range(0, steps.key.shape[1], chunk):
         part = jax.tree.map(lambda a, k0=k0: a[:, k0 : k0 + chunk], steps)
-        carry, rec = _chunk(model, carry, part, target_acceptance, max_tree_depth)
+        try:
+            carry, rec = _chunk(model, carry, part, target_acceptance, max_tree_depth)
+        except eqx.EquinoxRuntimeError:
+            raise _failed_derivative(names, carry, transforms, k0, chunk) from None
         records.append(jax.tree.map(np.asarray, rec))
         if bar:
             done = min(k0 + chunk, num_warmup + num_samples)
@@ -590,6 +604,24 @@ def posterior(
         seed,
         noise,
         seconds,
+    )
+
+
+def _failed_derivative(names, carry, transforms, k0, chunk) -> SolverError:
+    """A derivative through a solve that failed inside the sampler (a linear
+    solve of an event's implicit derivative met a non-finite value): the
+    runtime error of the compiled program, said in terms of the model."""
+    at = _to_x(transforms, np.asarray(carry.state.position))
+    where = "; ".join(
+        "(" + ", ".join(f"{n} = {v:.4g}" for n, v in zip(names, x, strict=True)) + ")"
+        for x in at
+    )
+    return SolverError(
+        f"posterior: a derivative through a solve was not finite during steps "
+        f"{k0}-{k0 + chunk} of the chains (last positions {where}); the "
+        "trajectories reached parameters where the model's sensitivities fail. "
+        "Narrow the priors or bounds of the free parameters to the physically "
+        "plausible range"
     )
 
 
