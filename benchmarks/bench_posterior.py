@@ -141,7 +141,7 @@ def main():
     )
     runs = [
         ball_prism(
-            "normal impact, quadrature (S_y | e_n)",
+            "normal impact, quadrature (S_y from e_n)",
             quadrature,
             ["yield_strength"],
             ["cor_normal"],

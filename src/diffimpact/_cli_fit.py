@@ -426,10 +426,9 @@ def _line(result, i: int) -> int:
 
 
 def _unit(quantity: str) -> str:
-    from diffimpact._data import _SI, QUANTITIES
+    from diffimpact._data import unit_label
 
-    dim = QUANTITIES[quantity].dimension if quantity in QUANTITIES else ""
-    return "" if dim in ("", "dimensionless") else f" [{_SI[dim]}]"
+    return unit_label(quantity)
 
 
 def plot_fit(result, path, force=False) -> None:

@@ -179,6 +179,12 @@ def parse_column(header: str, where: str = "") -> Column:
     return Column(header, quantity, unit, UNITS[unit][1], is_sigma)
 
 
+def unit_label(quantity: str) -> str:
+    """`` [SI unit]`` of a quantity for a figure's axis ("" if dimensionless)."""
+    dim = QUANTITIES[quantity].dimension if quantity in QUANTITIES else ""
+    return "" if dim in ("", "dimensionless") else f" [{_SI[dim]}]"
+
+
 def _units_of(dim: str) -> str:
     return ", ".join(u for u, (d, _) in UNITS.items() if d == dim)
 

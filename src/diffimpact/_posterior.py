@@ -52,14 +52,16 @@ from ._fit import (
     _FAILED_RESIDUAL,
     FitResult,
     IdentifiabilityWarning,
+    _json_ready,
     _Progress,
     _residuals,
     _with_adjoint,
     fit,
     prepare,
 )
+from ._posterior_plots import corner, predictive
 from ._priors import AbstractPrior, default_prior, parse_prior, prior_draws_u
-from ._result import SolverError
+from ._result import RESULTS, SolverError
 
 _QUANTILES = (0.05, 0.5, 0.95)
 # A data direction whose posterior spread is more than half its prior spread
@@ -187,8 +189,6 @@ class PosteriorResult:
 
     def to_dict(self) -> dict:
         """A JSON-ready summary (no samples: `save` writes those)."""
-        from ._fit import _json_ready
-
         params = {}
         for i, n in enumerate(self.names):
             params[n] = {
@@ -246,15 +246,11 @@ class PosteriorResult:
     def plot_corner(self, truths=None):
         """Corner plot of the draws, with the least-squares 1- and 2-sigma
         ellipses; returns the figure."""
-        from ._posterior_plots import corner
-
         return corner(self, truths)
 
     def plot_predictive(self):
         """Measured values against the posterior predictive bands, per
         quantity; returns the figure."""
-        from ._posterior_plots import predictive
-
         return predictive(self)
 
 
@@ -708,8 +704,6 @@ def _predictive(problem, pos, data, relative, seed) -> dict:
     draws, and a replicated measurement (the draw's prediction plus noise:
     the file's sigma, or for quantities without one, the noise factor drawn
     from its conditional posterior ``s^2 | theta ~ SS / chi^2_N``)."""
-    from ._result import RESULTS
-
     flat = pos.reshape(-1, pos.shape[-1])
     take = np.linspace(0, len(flat) - 1, min(_PREDICTIVE_DRAWS, len(flat))).astype(int)
     pred, codes = _predict_many(problem, jnp.asarray(flat[take]))

@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from ._data import unit_label
+
 # Mahalanobis radii of the 1- and 2-sigma ellipses of a 2-D Gaussian (the
 # 39 % and 86 % regions; the marginal 68 / 95 % intervals are the axes').
 _SIGMAS = (1.0, 2.0)
@@ -82,8 +84,6 @@ def corner(result, truths=None):
 def predictive(result):
     import matplotlib.pyplot as plt
 
-    from ._cli_fit import _unit
-
     pp = result.predictive
     quantities, measured = pp["quantities"], pp["measured"]
     n, k = measured.shape
@@ -92,7 +92,7 @@ def predictive(result):
     for j, q in enumerate(quantities):
         ax = axes[0, j]
         model, rep, m = pp["model"][:, :, j], pp["replicated"][:, :, j], measured[:, j]
-        unit = _unit(q)
+        unit = unit_label(q)
         if n <= 60:  # row by row
             ax.vlines(
                 lines,
