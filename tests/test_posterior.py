@@ -2,6 +2,7 @@
 against least squares, identifiability, bad input."""
 
 import math
+import pathlib
 import warnings
 
 import jax
@@ -14,6 +15,7 @@ from diffimpact._diagnostics import ess_bulk, split_rhat
 from diffimpact._priors import parse_prior
 from diffimpact._transforms import make_transform
 
+DATA_BALL_PRISM = pathlib.Path(__file__).parent.parent / "data" / "ball_prism.csv"
 # The normal impact on the quadrature path: a posterior in seconds.
 TRUTH = {"yield_strength": 400e6, "youngs_modulus": 207e9}
 VELOCITIES = np.linspace(0.2, 3.0, 8)
@@ -332,3 +334,36 @@ def test_a_plain_number_set_by_tree_at_is_a_parameter(noisy):
     e = eqx.tree_at(lambda e: e.scene.flat.yield_strength, e, 380e6)
     r = di.fit(noisy, e, free=["yield_strength"])
     assert r.start[0] == 380e6 and abs(r.values[0] / 400e6 - 1.0) < 0.05
+
+
+def test_a_prior_away_from_the_data_and_the_start(noisy):
+    """The truth (400 MPa) and the start value lie outside a uniform prior on
+    (450, 600) MPa: the start moves to the prior's middle, the least-squares
+    optimum sits on the bound (a saturated sigmoid, once a division by zero),
+    and every draw stays inside."""
+    r = di.posterior(
+        noisy,
+        "normal_impact",
+        free=["yield_strength"],
+        priors={"yield_strength": di.UniformPrior(450e6, 600e6)},
+        num_samples=50,
+        num_warmup=50,
+        num_chains=1,
+    )
+    assert r.fit.start[0] == 525e6 and r.fit.values[0] < 451e6
+    assert np.all((r.samples > 450e6) & (r.samples < 600e6))
+    # the data push against the lower bound: most draws sit near it
+    assert np.median(r.samples) < 470e6
+
+
+def test_an_improper_posterior_is_refused(tmp_path):
+    """Three measurements without sigma and three free parameters: the noise
+    integrated out leaves a density that is infinite where the data are
+    fitted exactly; refused before any solve."""
+    with pytest.raises(ValueError, match="posterior is improper"):
+        di.posterior(
+            DATA_BALL_PRISM,
+            "sphere_on_incline",
+            free=["yield_strength", "youngs_modulus", "poisson_ratio"],
+            outputs=["cor_normal"],
+        )

@@ -119,7 +119,8 @@ def register(sub) -> None:
         help="prior of a free parameter (with --posterior), e.g. mu=uniform:0:1, "
         "yield_strength=lognormal:4e8:0.5; kinds: normal:MEAN:SD, "
         "lognormal:MEDIAN:SIGMA, uniform:LOWER:UPPER, loguniform:LOWER:UPPER "
-        "(default: lognormal about the start value, sigma 1)",
+        "(default: lognormal about the start value, sigma 1; uniform between "
+        "finite bounds)",
     )
     p.add_argument(
         "--seed",
@@ -234,6 +235,10 @@ def _fit_and_write(args, out) -> int:
             raise ValueError(f"--bounds expects NAME=LO:HI, got {k}={v}")
         bounds[k] = (_number(lo, "bounds"), _number(hi, "bounds"))
     options = dict(solver=args.solver, max_steps=args.max_steps)
+    if args.posterior:  # priors against bounds and starts, before any fit
+        from diffimpact._posterior import plan
+
+        plan(data, experiment, free, _pairs(args.prior, "prior"), start, bounds)
     if args.holdout is not None:
         result = _cross_validate(
             args, data, experiment, free, dict(start=start, bounds=bounds), out
@@ -261,7 +266,7 @@ def _fit_and_write(args, out) -> int:
     plot_fit(result, os.path.join(out, "fit.png"), args.force)
     note = plot_loop(result, os.path.join(out, "loop.png"), args.force)
     if args.posterior:
-        _posterior(args, data, experiment, free, start, bounds, out)
+        _posterior(args, data, experiment, free, start, bounds, out, result)
     files = _files(args)
     print(f"wrote {out}/: {', '.join(files)}" + (f" ({note})" if note else ""))
     return 0
@@ -307,8 +312,8 @@ def _check_posterior_options(args) -> None:
         parse_prior(text)
 
 
-def _posterior(args, data, experiment, free, start, bounds, out) -> None:
-    """``--posterior``: NUTS after the least-squares fit, four more files."""
+def _posterior(args, data, experiment, free, start, bounds, out, fitted) -> None:
+    """``--posterior``: NUTS from the least-squares fit, four more files."""
     import diffimpact as di
 
     options = {
@@ -332,6 +337,7 @@ def _posterior(args, data, experiment, free, start, bounds, out) -> None:
         start=start,
         bounds=bounds,
         progress=not args.no_progress,
+        least_squares=fitted,
         **options,
     )
     print(post.summary())

@@ -30,10 +30,11 @@ def _split(x: np.ndarray) -> np.ndarray:
 
 
 def _rank_normal(x: np.ndarray) -> np.ndarray:
-    """Normal scores of the ranks over all chains together (Blom's offsets)."""
+    """Normal scores of the ranks over all chains together (Blom's offsets);
+    tied draws (NUTS repeats a draw when it rejects) share their average rank."""
     flat = x.ravel()
-    ranks = np.empty(flat.size)
-    ranks[np.argsort(flat, kind="stable")] = np.arange(1, flat.size + 1)
+    _, where, counts = np.unique(flat, return_inverse=True, return_counts=True)
+    ranks = (np.cumsum(counts) - 0.5 * (counts - 1))[where.ravel()]
     z = np.asarray(ndtri((ranks - 0.375) / (flat.size + 0.25)))
     return z.reshape(x.shape)
 

@@ -413,6 +413,13 @@ def prepare(data, experiment, free, start, bounds, outputs, chunk_size):
     parameters resolved with their transforms, and the residual problem.
     Returns ``(data, problem, u0, x0, absolute)``; every check happens here,
     before any solve."""
+    data, experiment, free = resolve(data, experiment, free)
+    return build(data, experiment, free, start, bounds, outputs, chunk_size)
+
+
+def resolve(data, experiment, free):
+    """The data loaded, the experiment made (from a scene name or the file's
+    scene) and every row's scene checked; the free names as a tuple."""
     if isinstance(free, str):
         free = [f.strip() for f in free.split(",") if f.strip()]
     free = tuple(free)
@@ -438,7 +445,16 @@ def prepare(data, experiment, free, start, bounds, outputs, chunk_size):
             f"is {spec.name!r}"
         )
     check_rows(experiment, data.inputs, data.path, data.lines, data.checks)
+    return data, experiment, free
 
+
+def default_bounds(path: str) -> tuple[float, float]:
+    """The bounds of a parameter (by its dotted path) when none are given."""
+    return _DOMAINS.get(path.rpartition(".")[2], (0.0, math.inf))
+
+
+def build(data, experiment, free, start, bounds, outputs, chunk_size):
+    """`prepare` after `resolve`: transforms and the residual problem."""
     start, bounds = dict(start or {}), dict(bounds or {})
     for d, what in ((start, "start"), (bounds, "bounds")):
         extra = set(d) - set(free)

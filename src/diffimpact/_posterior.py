@@ -53,12 +53,16 @@ from ._fit import (
     FitResult,
     IdentifiabilityWarning,
     _json_ready,
+    _predictions,
     _Progress,
     _residuals,
     _with_adjoint,
+    build,
+    default_bounds,
     fit,
-    prepare,
+    resolve,
 )
+from ._observables import get_path, resolve_parameter, with_parameters
 from ._posterior_plots import corner, predictive
 from ._priors import AbstractPrior, default_prior, parse_prior, prior_draws_u
 from ._result import RESULTS, SolverError
@@ -274,7 +278,7 @@ class _Model(eqx.Module):
         lp = lp - 0.5 * jnp.sum(jnp.where(self.relative, 0.0, r) ** 2)
         if self.n_relative:
             ss = jnp.sum(jnp.where(self.relative, r, 0.0) ** 2)
-            lp = lp - 0.5 * self.n_relative * jnp.log(ss)
+            lp = lp - 0.5 * self.n_relative * jnp.log(jnp.maximum(ss, 1e-300))
         # A row whose prediction failed (outside the model) has no density: a
         # drop far past the divergence threshold, so that NUTS turns back and
         # counts a divergent transition instead of sampling there.
@@ -416,22 +420,32 @@ def _priors_of(free, priors) -> dict:
     return out
 
 
-def _narrowed_bounds(transforms, names, priors, bounds) -> dict | None:
-    """Bounds within the priors' supports, or None if they already are."""
-    new, changed = dict(bounds or {}), False
-    for n, t in zip(names, transforms, strict=True):
-        if n not in priors:
-            continue
-        lo, hi = priors[n].support
-        lo, hi = max(lo, t.lower), min(hi, t.upper)
-        if lo >= hi:
+def plan(data, experiment, free, priors, start=None, bounds=None):
+    """The priors checked against the free parameters, and the bounds and
+    start values they imply, before any solve: a prior with bounded support
+    bounds its parameter (within the user's bounds, or the parameter's
+    domain), and a start value outside it moves to the prior's median.
+    Returns ``(data, experiment, free, priors, start, bounds)``."""
+    data, experiment, free = resolve(data, experiment, free)
+    priors = _priors_of(free, priors)
+    start, bounds = dict(start or {}), dict(bounds or {})
+    for n, prior in priors.items():
+        path = resolve_parameter(experiment, n)
+        lo, hi = bounds.get(n, default_bounds(path))
+        p_lo, p_hi = prior.support
+        lo, hi = max(lo, p_lo), min(hi, p_hi)
+        if not lo < hi:
             raise ValueError(
-                f"the prior of {n!r} ({priors[n]}) lies outside its bounds "
-                f"({t.lower}, {t.upper})"
+                f"the prior of {n!r} ({prior}) lies outside its bounds "
+                f"{tuple(bounds.get(n, default_bounds(path)))}"
             )
-        if (lo, hi) != (t.lower, t.upper):
-            new[n], changed = (lo, hi), True
-    return new if changed else None
+        if (p_lo, p_hi) != (-math.inf, math.inf):
+            bounds[n] = (lo, hi)
+        if n not in start:
+            value = get_path(with_parameters(experiment, (path,)), path)
+            if not lo < float(value) < hi:
+                start[n] = prior.center
+    return data, experiment, free, priors, start, bounds
 
 
 def posterior(
@@ -451,6 +465,7 @@ def posterior(
     max_tree_depth: int = 10,
     progress: bool = False,
     chunk_size: int | None | str = "auto",
+    least_squares: FitResult | None = None,
 ) -> PosteriorResult:
     """Sample the posterior of the free parameters given the measurements.
 
@@ -475,6 +490,9 @@ def posterior(
       transitions are reported; `max_tree_depth`: NUTS
       doublings per draw (up to ``2^depth`` steps).
     - `progress`: a progress bar on stderr.
+    - `least_squares`: a `FitResult` of the same free parameters to start
+      the chains from (the command line passes its own fit); by default
+      `fit` runs first.
 
     **Returns:** a `PosteriorResult`.  Warns (`ConvergenceWarning`) naming the
     parameter when R-hat exceeds 1.01 or the effective sample size is below
@@ -492,48 +510,52 @@ def posterior(
     _check_counts(
         num_samples, num_warmup, num_chains, seed, target_acceptance, max_tree_depth
     )
-    user_priors = _priors_of(free, priors)
     t0 = time.perf_counter()
-    data, problem, _, _, _ = prepare(
+    data, experiment, free, user_priors, start, bounds = plan(
+        data, experiment, free, priors, start, bounds
+    )
+    data, problem, _, _, _ = build(
         data, experiment, free, start, bounds, outputs, chunk_size
     )
-    narrowed = _narrowed_bounds(problem.transforms, problem.names, user_priors, bounds)
-    start = dict(start or {})
-    if narrowed is not None:
-        # a start value outside a bounded prior starts at the prior's middle
-        for n, t in zip(problem.names, problem.transforms, strict=True):
-            lo, hi = narrowed.get(n, (t.lower, t.upper))
-            if n not in start and not lo < t.start < hi:
-                start[n] = user_priors[n].center
-        bounds = narrowed
-        data, problem, _, _, _ = prepare(
-            data, experiment, free, start, bounds, outputs, chunk_size
-        )
     names, transforms = problem.names, problem.transforms
     prior_list = tuple(
         user_priors.get(n, default_prior(t))
         for n, t in zip(names, transforms, strict=True)
     )
-    bar = _Progress(num_warmup + num_samples, "NUTS") if progress else None
-    if bar:
-        bar.message("least squares first (the chains start at its optimum)...")
-    with warnings.catch_warnings():
-        # its identifiability warnings are the posterior's to give (below)
-        warnings.simplefilter("ignore", IdentifiabilityWarning)
-        ls = fit(
-            data,
-            problem.experiment,
-            names,
-            start=start,
-            bounds=bounds,
-            outputs=problem.quantities,
-            chunk_size=chunk_size,
-        )
-    forward = _with_adjoint(problem, diffrax.ForwardMode())
     relative = np.zeros(problem.mask.shape, dtype=bool)
     for k, q in enumerate(problem.quantities):
         if q not in data.sigmas:
             relative[:, k] = np.asarray(problem.mask[:, k])
+    if relative.any() and int(relative.sum()) <= len(names):
+        raise ValueError(
+            f"{data.path}: {int(relative.sum())} measurement(s) without sigma for "
+            f"{len(names)} free parameter(s): the noise cannot be estimated, and "
+            "with it integrated out the posterior is improper (infinite where "
+            "the data are fitted exactly); add sigma_ columns or more rows"
+        )
+    bar = _Progress(num_warmup + num_samples, "NUTS") if progress else None
+    if least_squares is not None:
+        ls = least_squares
+        if tuple(ls.names) != tuple(names):
+            raise ValueError(
+                f"`least_squares` fitted {ls.names}, not the free parameters {names}"
+            )
+    else:
+        if bar:
+            bar.message("least squares first (the chains start at its optimum)...")
+        with warnings.catch_warnings():
+            # its identifiability warnings are the posterior's to give (below)
+            warnings.simplefilter("ignore", IdentifiabilityWarning)
+            ls = fit(
+                data,
+                problem.experiment,
+                names,
+                start=start,
+                bounds=bounds,
+                outputs=problem.quantities,
+                chunk_size=chunk_size,
+            )
+    forward = _with_adjoint(problem, diffrax.ForwardMode())
     model = _Model(
         forward, jnp.asarray(relative.ravel()), prior_list, int(relative.sum())
     )
@@ -557,6 +579,10 @@ def posterior(
         [t.inverse(float(v)) for t, v in zip(transforms, ls.values, strict=True)]
     )
     u0, imm0 = _starts(ls, transforms, u_hat, num_chains, seed)
+    # a start where a row's prediction fails moves to the optimum itself
+    codes = np.stack([np.asarray(_predictions(forward, jnp.asarray(u))[1]) for u in u0])
+    bad = np.any(codes != RESULTS.successful._value, axis=1)
+    u0[bad] = np.clip(u_hat, 1.0 - _U_MAX, _U_MAX - 1.0)
     carry = _init(model, jnp.asarray(u0), jnp.asarray(imm0), target_acceptance)
     chunk = max(10, min(100, (num_warmup + num_samples) // 40))
     steps = _schedule(num_warmup, num_samples, jax.random.key(seed), num_chains, chunk)
@@ -619,7 +645,7 @@ def _failed_derivative(names, carry, transforms, k0, chunk) -> SolverError:
     )
     return SolverError(
         f"posterior: a derivative through a solve was not finite during steps "
-        f"{k0}-{k0 + chunk} of the chains (last positions {where}); the "
+        f"{k0}-{k0 + chunk} of the chains (positions at step {k0}: {where}); the "
         "trajectories reached parameters where the model's sensitivities fail. "
         "Narrow the priors or bounds of the free parameters to the physically "
         "plausible range"
@@ -627,8 +653,9 @@ def _failed_derivative(names, carry, transforms, k0, chunk) -> SolverError:
 
 
 def _starts(ls: FitResult, transforms, u_hat, num_chains: int, seed: int):
-    """Each chain's start (the optimum displaced by twice its standard errors,
-    at most 2 in ``u``) and first inverse mass matrix (the least-squares
+    """Each chain's start (the optimum displaced by ``2 se z``, ``z`` a standard
+    normal draw and ``se`` the standard error in ``u`` capped at 1; all inside
+    the sampler's box) and first inverse mass matrix (the least-squares
     covariance in ``u``, where it is finite and positive definite)."""
     p = len(transforms)
     dx_du = np.array(
@@ -649,7 +676,8 @@ def _starts(ls: FitResult, transforms, u_hat, num_chains: int, seed: int):
         except np.linalg.LinAlgError:
             pass
     z = np.random.default_rng(seed).standard_normal((num_chains, p))
-    u0 = u_hat + 2.0 * se_u * z
+    u_hat = np.clip(u_hat, 1.0 - _U_MAX, _U_MAX - 1.0)
+    u0 = np.clip(u_hat + 2.0 * se_u * z, 1.0 - _U_MAX, _U_MAX - 1.0)
     return u0, np.broadcast_to(imm0, (num_chains, p, p)).copy()
 
 
@@ -672,9 +700,13 @@ def _contraction(names, transforms, priors, pos, seed) -> tuple[str, float]:
     largest fraction of its prior spread, and that fraction: the generalised
     eigenproblem of the posterior covariance against the prior's (the priors
     are independent, so the latter is diagonal)."""
+
+    def boxed(u):  # the prior the sampler sees: cut at the box
+        return u[np.abs(u) <= _U_MAX]
+
     var = np.array(
         [
-            np.var(prior_draws_u(p, t, _PRIOR_DRAWS, seed + i))
+            np.var(boxed(prior_draws_u(p, t, _PRIOR_DRAWS, seed + i)))
             for i, (p, t) in enumerate(zip(priors, transforms, strict=True))
         ]
     )
@@ -694,20 +726,20 @@ def _contraction(names, transforms, priors, pos, seed) -> tuple[str, float]:
     return text, float(np.sqrt(max(lam[-1], 0.0)))
 
 
-@eqx.filter_jit
-def _predict_many(problem, us):
-    return jax.lax.map(problem.predictions, us)
-
-
 def _predictive(problem, pos, data, relative, seed) -> dict:
-    """Posterior predictive bands: the model's prediction over (up to 200)
-    draws, and a replicated measurement (the draw's prediction plus noise:
-    the file's sigma, or for quantities without one, the noise factor drawn
-    from its conditional posterior ``s^2 | theta ~ SS / chi^2_N``)."""
+    """Posterior predictive bands: the model's prediction over up to 200
+    draws (fewer for many rows), and a replicated measurement (the draw's
+    prediction plus noise: the file's sigma, or for quantities without one,
+    the noise factor drawn from its conditional posterior
+    ``s^2 | theta ~ SS / chi^2_N``)."""
     flat = pos.reshape(-1, pos.shape[-1])
-    take = np.linspace(0, len(flat) - 1, min(_PREDICTIVE_DRAWS, len(flat))).astype(int)
-    pred, codes = _predict_many(problem, jnp.asarray(flat[take]))
-    pred = np.asarray(pred)
+    # about 20,000 row predictions in all (200 draws of 100 rows, 20 of 2,000)
+    n_draws = min(_PREDICTIVE_DRAWS, max(20, 20000 // data.n), len(flat))
+    take = np.linspace(0, len(flat) - 1, n_draws).astype(int)
+    # one compiled prediction (the fit's), called per draw
+    out = [_predictions(problem, jnp.asarray(u)) for u in flat[take]]
+    pred = np.stack([np.asarray(p) for p, _ in out])
+    codes = np.stack([np.asarray(c) for _, c in out])
     mask = np.asarray(problem.mask)
     ok = (np.asarray(codes) == RESULTS.successful._value)[..., None] & mask
     pred = np.where(ok, pred, np.nan)

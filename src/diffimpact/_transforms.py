@@ -71,10 +71,13 @@ class Transform(eqx.Module):
         if kind == "log":
             return math.log(x / x0)
         if kind == "sigmoid":
-            p = (x - lo) / (hi - lo)
+            # clamped: an optimum on a bound (the sigmoid saturated) maps to a
+            # large finite u, not a division by zero
+            p = min(max((x - lo) / (hi - lo), 1e-15), 1.0 - 1e-15)
             return math.log(p / (1.0 - p))
         if kind == "softplus":
             z = (x - lo) / s if math.isfinite(lo) else (hi - x) / s
+            z = max(z, 1e-15)  # on the bound: large negative u, not log(0)
             return z + math.log(-math.expm1(-z))  # inverse softplus
         return (x - x0) / s
 
