@@ -22,6 +22,7 @@ default 40; about 10 minutes on 2 cores without ``--compliant``).
 
 from __future__ import annotations
 
+import importlib.util
 import sys
 import tempfile
 import time
@@ -29,7 +30,6 @@ import warnings
 from pathlib import Path
 
 import jax
-import jax.numpy as jnp
 import numpy as np
 
 jax.config.update("jax_enable_x64", True)
@@ -47,31 +47,13 @@ from _report import machine_line, markdown_table  # noqa: E402
 
 HERE = Path(__file__).parent
 DATA = HERE.parent / "data" / "ball_prism.csv"
-TRUTH = {"yield_strength": 400e6, "youngs_modulus": 207e9}
-VELOCITIES = np.linspace(0.2, 3.0, 8)
-
-
-def noisy_file(path, seed, noise=0.01):
-    exp = di.Experiment.default("normal_impact")
-    out = jax.vmap(lambda v: di.predict(exp, {"impact_velocity": v}))(
-        jnp.asarray(VELOCITIES)
-    )
-    rng = np.random.default_rng(seed)
-    t = np.asarray(out["contact_time"]) * 1e6
-    e = np.asarray(out["cor_normal"])
-    di.write_experiments(
-        path,
-        {
-            "impact_velocity_m_s": VELOCITIES,
-            "contact_time_us": t * (1 + noise * rng.standard_normal(t.size)),
-            "sigma_contact_time_us": noise * t,
-            "cor_normal": e * (1 + noise * rng.standard_normal(e.size)),
-            "sigma_cor_normal": noise * e,
-        },
-        scene="normal_impact",
-        provenance=f"SYNTHETIC, 1 % noise, seed {seed}",
-    )
-    return path
+_spec = importlib.util.spec_from_file_location(
+    "make_synthetic", HERE.parent / "data" / "make_synthetic.py"
+)
+make_synthetic = importlib.util.module_from_spec(_spec)
+_spec.loader.exec_module(make_synthetic)
+TRUTH = make_synthetic.NORMAL_TRUTH
+noisy_file = make_synthetic.noisy_normal_impacts
 
 
 def coverage(n_sets: int):

@@ -53,6 +53,39 @@ def true_experiment():
     )
 
 
+# The calibration data of the posterior (tests/test_posterior.py and
+# benchmarks/bench_posterior.py): the default normal impact, whose flat's
+# values these are, at 8 speeds.
+NORMAL_TRUTH = {"yield_strength": 400e6, "youngs_modulus": 207e9}
+NORMAL_VELOCITIES = np.linspace(0.2, 3.0, 8)
+
+
+def noisy_normal_impacts(path, seed: int, noise: float = NOISE):
+    """Contact times and CORs of the default normal impact at
+    NORMAL_VELOCITIES with Gaussian noise of ``noise`` times each value, and
+    the ``sigma_`` columns that say so, written to ``path``."""
+    exp = di.Experiment.default("normal_impact")
+    out = jax.vmap(lambda v: di.predict(exp, {"impact_velocity": v}))(
+        jnp.asarray(NORMAL_VELOCITIES)
+    )
+    rng = np.random.default_rng(seed)
+    t = np.asarray(out["contact_time"]) * 1e6
+    e = np.asarray(out["cor_normal"])
+    di.write_experiments(
+        path,
+        {
+            "impact_velocity_m_s": NORMAL_VELOCITIES,
+            "contact_time_us": t * (1 + noise * rng.standard_normal(t.size)),
+            "sigma_contact_time_us": noise * t,
+            "cor_normal": e * (1 + noise * rng.standard_normal(e.size)),
+            "sigma_cor_normal": noise * e,
+        },
+        scene="normal_impact",
+        provenance=f"SYNTHETIC, {100 * noise:g} % noise, seed {seed}",
+    )
+    return path
+
+
 def simulate_grid():
     h, a = (x.ravel() for x in np.meshgrid(HEIGHTS_M, ANGLES_DEG, indexing="ij"))
     exp = true_experiment()

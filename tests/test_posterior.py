@@ -1,6 +1,7 @@
 """Bayesian calibration (issue 18): priors, chain diagnostics, the posterior
 against least squares, identifiability, bad input."""
 
+import importlib.util
 import math
 import pathlib
 import warnings
@@ -17,33 +18,20 @@ from diffimpact._transforms import make_transform
 
 DATA_BALL_PRISM = pathlib.Path(__file__).parent.parent / "data" / "ball_prism.csv"
 # The normal impact on the quadrature path: a posterior in seconds.
-TRUTH = {"yield_strength": 400e6, "youngs_modulus": 207e9}
-VELOCITIES = np.linspace(0.2, 3.0, 8)
+_spec = importlib.util.spec_from_file_location(
+    "make_synthetic", DATA_BALL_PRISM.parent / "make_synthetic.py"
+)
+make_synthetic = importlib.util.module_from_spec(_spec)
+_spec.loader.exec_module(make_synthetic)
+TRUTH = make_synthetic.NORMAL_TRUTH
+# 2 chains of 500 draws after 300 warm-up steps
+RUN = dict(free=list(TRUTH), num_samples=500, num_warmup=300, num_chains=2, seed=1)
 
 
-def _noisy_file(path, seed=0, noise=0.01):
+def _noisy_file(path, seed=0):
     """Contact times and CORs of the default normal impact at 8 speeds, with
     1 % Gaussian noise and the sigma columns that say so."""
-    exp = di.Experiment.default("normal_impact")
-    out = jax.vmap(lambda v: di.predict(exp, {"impact_velocity": v}))(
-        jnp.asarray(VELOCITIES)
-    )
-    rng = np.random.default_rng(seed)
-    t = np.asarray(out["contact_time"]) * 1e6
-    e = np.asarray(out["cor_normal"])
-    di.write_experiments(
-        path,
-        {
-            "impact_velocity_m_s": VELOCITIES,
-            "contact_time_us": t * (1 + noise * rng.standard_normal(t.size)),
-            "sigma_contact_time_us": noise * t,
-            "cor_normal": e * (1 + noise * rng.standard_normal(e.size)),
-            "sigma_cor_normal": noise * e,
-        },
-        scene="normal_impact",
-        provenance="SYNTHETIC, 1 % noise (test)",
-    )
-    return path
+    return make_synthetic.noisy_normal_impacts(path, seed)
 
 
 # --- priors and transforms -------------------------------------------------
@@ -140,15 +128,7 @@ def noisy(tmp_path_factory):
 def normal_posterior(noisy):
     with warnings.catch_warnings():
         warnings.simplefilter("error", di.ConvergenceWarning)
-        return di.posterior(
-            noisy,
-            "normal_impact",
-            free=list(TRUTH),
-            num_samples=500,
-            num_warmup=300,
-            num_chains=2,
-            seed=1,
-        )
+        return di.posterior(noisy, "normal_impact", **RUN)
 
 
 def test_posterior_agrees_with_least_squares(normal_posterior):
@@ -180,15 +160,7 @@ def test_posterior_agrees_with_least_squares(normal_posterior):
 
 
 def test_the_same_seed_gives_the_same_draws(noisy, normal_posterior):
-    again = di.posterior(
-        noisy,
-        "normal_impact",
-        free=list(TRUTH),
-        num_samples=500,
-        num_warmup=300,
-        num_chains=2,
-        seed=1,
-    )
+    again = di.posterior(noisy, "normal_impact", **RUN)
     np.testing.assert_array_equal(again.samples, normal_posterior.samples)
 
 

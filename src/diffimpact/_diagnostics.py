@@ -14,7 +14,6 @@ folding (so that chains with one mean but different spreads are caught too).
 from __future__ import annotations
 
 import numpy as np
-from blackjax.diagnostics import effective_sample_size, potential_scale_reduction
 from jax.scipy.special import ndtri
 
 # Vehtari et al. (2021): R-hat above 1.01 means the chains have not mixed; an
@@ -39,11 +38,16 @@ def _rank_normal(x: np.ndarray) -> np.ndarray:
     return z.reshape(x.shape)
 
 
+# blackjax is imported where it is used: importing it starts JAX's backend.
 def _rhat(x: np.ndarray) -> float:
+    from blackjax.diagnostics import potential_scale_reduction
+
     return float(potential_scale_reduction(x))
 
 
 def _ess(x: np.ndarray) -> float:
+    from blackjax.diagnostics import effective_sample_size
+
     if np.ptp(x) == 0.0:  # a constant chain set carries no information
         return float("nan")
     return float(effective_sample_size(x))

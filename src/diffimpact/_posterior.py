@@ -36,15 +36,11 @@ import time
 import warnings
 from typing import NamedTuple
 
-import blackjax
 import diffrax
 import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
-from blackjax.adaptation.mass_matrix import mass_matrix_adaptation
-from blackjax.adaptation.step_size import dual_averaging_adaptation
-from blackjax.adaptation.window_adaptation import build_schedule
 
 from ._cli_files import open_new
 from ._diagnostics import ESS_PER_CHAIN_MIN, RHAT_MAX, ess_bulk, ess_tail, split_rhat
@@ -304,7 +300,13 @@ class _Steps(NamedTuple):
     last_warmup: jax.Array
 
 
+# blackjax is imported where it is used: importing it creates arrays, which
+# starts JAX's backend, and importing diffimpact must not (a host program may
+# still have to call jax.distributed.initialize or choose its platform).
 def _adaptation(target: float):
+    from blackjax.adaptation.mass_matrix import mass_matrix_adaptation
+    from blackjax.adaptation.step_size import dual_averaging_adaptation
+
     return (
         mass_matrix_adaptation(is_diagonal_matrix=False),
         dual_averaging_adaptation(target),
@@ -315,8 +317,10 @@ def _adaptation(target: float):
 def _init(model: _Model, u0, imm0, target: float):
     (mm_init, _, _), (da_init, _, _) = _adaptation(target)
 
+    from blackjax.mcmc.hmc import init as hmc_init
+
     def one(u, imm):
-        state = blackjax.mcmc.hmc.init(u, model.log_density)
+        state = hmc_init(u, model.log_density)
         return _Carry(state, jnp.asarray(0.5), imm, da_init(0.5), mm_init(u.size, imm))
 
     return jax.vmap(one)(u0, imm0)
@@ -327,7 +331,9 @@ def _chunk(model: _Model, carry: _Carry, steps: _Steps, target: float, depth: in
     """``len(steps)`` NUTS transitions of every chain (one ``vmap``), adapting
     where the schedule says so; returns the carry and per-step records."""
     (_, mm_update, mm_final), (da_init, da_update, da_final) = _adaptation(target)
-    kernel = blackjax.nuts.build_kernel()
+    from blackjax.mcmc.nuts import build_kernel
+
+    kernel = build_kernel()
 
     def chain(c: _Carry, steps: _Steps):
         def body(c: _Carry, s: _Steps):
@@ -369,6 +375,8 @@ def _chunk(model: _Model, carry: _Carry, steps: _Steps, target: float, depth: in
 
 
 def _schedule(num_warmup: int, num_samples: int, key, num_chains: int, chunk: int):
+    from blackjax.adaptation.window_adaptation import build_schedule
+
     total = num_warmup + num_samples
     padded = -(-total // chunk) * chunk
     sched = np.zeros((padded, 2), dtype=int)
@@ -613,20 +621,9 @@ def posterior(
     x = _to_x(transforms, pos)
     seconds = time.perf_counter() - t0
     return _result(
-        names,
-        prior_list,
-        transforms,
-        x,
-        pos,
-        logd,
-        div,
-        acc,
-        hits,
-        carry,
-        ls,
-        forward,
-        data,
-        relative,
+        (names, prior_list, transforms),
+        (x, pos, logd, div, acc, hits),
+        (carry, ls, forward, data, relative),
         num_warmup,
         seed,
         noise,
@@ -771,26 +768,22 @@ def _predictive(problem, pos, data, relative, seed) -> dict:
 
 
 def _result(
-    names,
-    priors,
-    transforms,
-    x,
-    pos,
-    logd,
-    div,
-    acc,
-    hits,
-    carry,
-    ls,
-    problem,
-    data,
-    relative,
-    num_warmup,
-    seed,
-    noise,
-    seconds,
+    model: tuple,
+    draws: tuple,
+    context: tuple,
+    num_warmup: int,
+    seed: int,
+    noise: str,
+    seconds: float,
 ) -> PosteriorResult:
-    chains, draws, p = x.shape
+    """The result of the draws: ``model`` = (names, priors, transforms);
+    ``draws`` = (x, u, log density, divergent, acceptance, tree-depth hits),
+    each ``(chains, draws, ...)``; ``context`` = (the final carry, the
+    least-squares fit, the residual problem, the data, the noise mask)."""
+    names, priors, transforms = model
+    x, pos, logd, div, acc, hits = draws
+    carry, ls, problem, data, relative = context
+    chains, _, p = x.shape
     rhat = np.array([split_rhat(x[..., i]) for i in range(p)])
     bulk = np.array([ess_bulk(x[..., i]) for i in range(p)])
     tail = np.array([ess_tail(x[..., i]) for i in range(p)])
