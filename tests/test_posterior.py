@@ -328,14 +328,20 @@ def test_a_prior_away_from_the_data_and_the_start(noisy):
     assert np.median(r.samples) < 470e6
 
 
-def test_an_improper_posterior_is_refused(tmp_path):
+def test_an_improper_posterior_is_refused(tmp_path, capsys):
     """Three measurements without sigma and three free parameters: the noise
     integrated out leaves a density that is infinite where the data are
-    fitted exactly; refused before any solve."""
+    fitted exactly; refused before any solve (the command line writes no
+    file)."""
+    from diffimpact._cli import main
+
+    three = ["yield_strength", "youngs_modulus", "poisson_ratio"]
     with pytest.raises(ValueError, match="posterior is improper"):
         di.posterior(
-            DATA_BALL_PRISM,
-            "sphere_on_incline",
-            free=["yield_strength", "youngs_modulus", "poisson_ratio"],
-            outputs=["cor_normal"],
+            DATA_BALL_PRISM, "sphere_on_incline", free=three, outputs=["cor_normal"]
         )
+    six = ",".join([*three, "mu", "radius", "mass"])
+    argv = ["fit", str(DATA_BALL_PRISM), "--free", six, "--posterior"]
+    assert main([*argv, "--out", str(tmp_path / "out")]) == 2
+    assert "posterior is improper" in capsys.readouterr().err
+    assert not (tmp_path / "out").exists()

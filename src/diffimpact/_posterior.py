@@ -428,13 +428,25 @@ def _priors_of(free, priors) -> dict:
     return out
 
 
-def plan(data, experiment, free, priors, start=None, bounds=None):
+def plan(data, experiment, free, priors, start=None, bounds=None, outputs=None):
     """The priors checked against the free parameters, and the bounds and
     start values they imply, before any solve: a prior with bounded support
     bounds its parameter (within the user's bounds, or the parameter's
-    domain), and a start value outside it moves to the prior's median.
-    Returns ``(data, experiment, free, priors, start, bounds)``."""
+    domain), and a start value outside it moves to the prior's median.  An
+    improper posterior (no more measurements without sigma than free
+    parameters) is refused.  Returns ``(data, experiment, free, priors,
+    start, bounds)``."""
     data, experiment, free = resolve(data, experiment, free)
+    wanted = [outputs] if isinstance(outputs, str) else outputs or data.outputs
+    fitted = [q for q in wanted if q in data.outputs and q not in data.sigmas]
+    n_relative = sum(int(np.isfinite(data.outputs[q]).sum()) for q in fitted)
+    if 0 < n_relative <= len(free):
+        raise ValueError(
+            f"{data.path}: {n_relative} measurement(s) without sigma for "
+            f"{len(free)} free parameter(s): the noise cannot be estimated, and "
+            "with it integrated out the posterior is improper (infinite where "
+            "the data are fitted exactly); add sigma_ columns or more rows"
+        )
     priors = _priors_of(free, priors)
     start, bounds = dict(start or {}), dict(bounds or {})
     for n, prior in priors.items():
@@ -520,7 +532,7 @@ def posterior(
     )
     t0 = time.perf_counter()
     data, experiment, free, user_priors, start, bounds = plan(
-        data, experiment, free, priors, start, bounds
+        data, experiment, free, priors, start, bounds, outputs
     )
     data, problem, _, _, _ = build(
         data, experiment, free, start, bounds, outputs, chunk_size
@@ -534,13 +546,6 @@ def posterior(
     for k, q in enumerate(problem.quantities):
         if q not in data.sigmas:
             relative[:, k] = np.asarray(problem.mask[:, k])
-    if relative.any() and int(relative.sum()) <= len(names):
-        raise ValueError(
-            f"{data.path}: {int(relative.sum())} measurement(s) without sigma for "
-            f"{len(names)} free parameter(s): the noise cannot be estimated, and "
-            "with it integrated out the posterior is improper (infinite where "
-            "the data are fitted exactly); add sigma_ columns or more rows"
-        )
     bar = _Progress(num_warmup + num_samples, "NUTS") if progress else None
     if least_squares is not None:
         ls = least_squares
