@@ -670,13 +670,12 @@ def _starts(ls: FitResult, transforms, u_hat, num_chains: int, seed: int):
         cov_u = np.asarray(ls.covariance) / np.outer(dx_du, dx_du)
     se_u = np.sqrt(np.abs(np.diag(cov_u)))
     se_u = np.clip(np.nan_to_num(se_u, nan=1.0, posinf=1.0), 1e-12, 1.0)
-    imm0 = np.diag(se_u**2)
-    if np.all(np.isfinite(cov_u)) and np.all(np.diag(cov_u) <= 1.0):
-        try:
-            np.linalg.cholesky(cov_u)
-            imm0 = cov_u
-        except np.linalg.LinAlgError:
-            pass
+    usable = np.all(np.isfinite(cov_u)) and np.all(np.diag(cov_u) <= 1.0)
+    # positive definite (all eigenvalues above zero), else its diagonal only
+    if usable and np.linalg.eigvalsh(cov_u).min() > 0.0:
+        imm0 = cov_u
+    else:
+        imm0 = np.diag(se_u**2)
     z = np.random.default_rng(seed).standard_normal((num_chains, p))
     u_hat = np.clip(u_hat, 1.0 - _U_MAX, _U_MAX - 1.0)
     u0 = np.clip(u_hat + 2.0 * se_u * z, 1.0 - _U_MAX, _U_MAX - 1.0)

@@ -10,6 +10,7 @@ the user wrote, whatever the coordinate.  A prior with bounded support (a
 
 from __future__ import annotations
 
+import abc
 import math
 
 import equinox as eqx
@@ -40,17 +41,18 @@ class AbstractPrior(eqx.Module):
         return (-math.inf, math.inf)
 
     @property
+    @abc.abstractmethod
     def center(self) -> float:
         """A typical value (the median): the start of a parameter whose own
         start value lies outside the prior's support."""
-        raise NotImplementedError
 
+    @abc.abstractmethod
     def log_prob(self, x):
         """Log density at ``x``, up to a constant."""
-        raise NotImplementedError
 
+    @abc.abstractmethod
     def sample(self, key, shape) -> jax.Array:
-        raise NotImplementedError
+        """Draws of the prior, of the given shape."""
 
 
 class NormalPrior(AbstractPrior):
