@@ -16,8 +16,9 @@ import jax
 import numpy as np
 
 from ._data import ExperimentData, load_experiments
-from ._fit import FitResult, _chunk_size, fit, map_rows
+from ._fit import FitResult, fit
 from ._observables import Experiment, predict
+from ._residuals import _chunk_size, map_rows
 
 
 @dataclasses.dataclass(frozen=True)

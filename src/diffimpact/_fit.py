@@ -33,20 +33,26 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import optax
-import optimistix as optx
 
 from ._data import ExperimentData, load_experiments
+from ._lsq import RowBlocks, least_squares, workers
 from ._observables import (
     Experiment,
     check_rows,
     get_path,
-    getter,
     predict,
     resolve_parameter,
     row_label,
     scene_spec,
     set_parameters,
     with_parameters,
+)
+from ._residuals import (
+    _FAILED_RESIDUAL,
+    _chunk_size,
+    _jacobian,
+    _predictions,
+    _Problem,
 )
 from ._result import RESULTS, SolverError, result_name
 from ._transforms import make_transform
@@ -60,11 +66,6 @@ _RANK_TOL = 1e-6
 # (so the errors come out huge and the correlation +-1, not infinite or NaN).
 _SV_FLOOR = 1e-9
 _STALL = 4
-# Weighted residual given to a row whose prediction failed during the
-# iterations (outside the contact model, say): large and constant, so that a
-# trial step into such a region raises the cost and is rejected, while the
-# residuals of the other rows stay exact.
-_FAILED_RESIDUAL = 1e6
 # Default bounds of parameters whose domain is not (0, inf), by field name.
 _DOMAINS = {
     "poisson_ratio": (-1.0, 0.5),
@@ -90,7 +91,9 @@ class FitResult:
       `lines`: the line in the data file of each row (how every message and
       output file names a row);
     - `cost`: half the weighted sum of squares; `chi2_reduced`: ``2 cost / dof``;
-    - `iterations`, `converged`, `solver`, `seconds`;
+    - `iterations`, `converged`, `solver`, `seconds`; `subsample`: ``(rows,
+      iterations)`` of the warm start on a subsample (counted in
+      `iterations`), ``(0, 0)`` without one;
     - `singular_values`: of the Jacobian w.r.t. the unconstrained parameters;
     - `warnings`: identifiability and convergence messages;
     - `experiment`: the `Experiment` with the fitted values in place.
@@ -121,6 +124,7 @@ class FitResult:
     experiment: Experiment
     sigma_measured: tuple[bool, ...] = ()
     lines: np.ndarray | None = None
+    subsample: tuple[int, int] = (0, 0)
 
     @property
     def identifiable(self) -> bool:
@@ -144,6 +148,11 @@ class FitResult:
             f"{self.cost:.4g}, reduced chi^2 {self.chi2_reduced:.4g} "
             f"(dof {self.dof}), {self.seconds:.1f} s"
         )
+        if self.subsample[0]:
+            lines[-1] += (
+                f"; the first {self.subsample[1]} iterations on "
+                f"{self.subsample[0]} rows"
+            )
         lines += [f"warning: {m}" for m in self.warnings]
         return "\n".join(lines)
 
@@ -172,6 +181,10 @@ class FitResult:
             "converged": self.converged,
             "solver": self.solver,
             "seconds": self.seconds,
+            "subsample": {
+                "rows": self.subsample[0],
+                "iterations": self.subsample[1],
+            },
             "singular_values": self.singular_values.tolist(),
             "warnings": list(self.warnings),
         }
@@ -185,132 +198,6 @@ def _json_ready(x):
     if isinstance(x, float) and not math.isfinite(x):
         return None
     return x
-
-
-def map_rows(fn, rows, chunk_size: int | None):
-    """``fn`` over the rows of ``rows`` (a dict of arrays): all at once
-    (``vmap``) when `chunk_size` is None, else in chunks one after another.
-    A vmapped ODE solve runs as many steps as the longest impact of its
-    batch, and impacts from measured states differ (one ellipse drop in 400
-    took 1,446 steps, the median 207): on a CPU, chunks of 8 predicted 2,000
-    of them in 11.3 s against 23.9 s all at once (benchmarks/bench_body.py)."""
-    if chunk_size is None:
-        return jax.vmap(fn)(rows)
-    return jax.lax.map(fn, rows, batch_size=chunk_size)
-
-
-def _chunk_size(chunk_size, n: int) -> int | None:
-    if chunk_size == "auto":
-        cpu = jax.default_backend() == "cpu"
-        chunk_size = 8 if cpu and n > 8 else None
-    if chunk_size is not None and (
-        isinstance(chunk_size, bool)
-        or not isinstance(chunk_size, int)
-        or chunk_size < 1
-    ):
-        raise ValueError(
-            f"chunk_size={chunk_size!r}: expected an integer >= 1, None (all rows "
-            "at once) or 'auto'"
-        )
-    return None if chunk_size is None or chunk_size >= n else chunk_size
-
-
-class _Problem(eqx.Module):
-    """Everything the residual needs, passed as ``args`` (a pytree)."""
-
-    experiment: Experiment
-    inputs: dict
-    measured: jax.Array
-    sigma: jax.Array
-    mask: jax.Array
-    names: tuple[str, ...] = eqx.field(static=True)
-    paths: tuple[str, ...] = eqx.field(static=True)
-    quantities: tuple[str, ...] = eqx.field(static=True)
-    transforms: tuple = eqx.field(static=True)
-    chunk_size: int | None = eqx.field(static=True, default=None)
-
-    def parameters(self, u):
-        return [t.forward(u[i]) for i, t in enumerate(self.transforms)]
-
-    def with_parameters(self, u) -> Experiment:
-        where = [getter(p) for p in self.paths]
-        return eqx.tree_at(
-            lambda e: [g(e) for g in where], self.experiment, self.parameters(u)
-        )
-
-    def predictions(self, u):
-        """``(predicted (n, k), result codes (n,))``; a failed row is NaN."""
-        e = self.with_parameters(u)
-
-        def one(row):
-            # Unguarded: every row's scene was checked eagerly (`check_rows`)
-            # and the free parameters stay in their domains (transforms within
-            # `_check_bounds`); without the traced check's host callback JAX can
-            # store the compiled fit on disk.
-            out = predict(e, row, throw=False, _guarded=False)
-            return jnp.stack([out[q] for q in self.quantities]), out["result"]._value
-
-        return map_rows(one, self.inputs, self.chunk_size)
-
-    def residuals(self, u):
-        pred, codes = self.predictions(u)
-        ok = (codes == RESULTS.successful._value)[:, None]
-        r = jnp.where(self.mask, (pred - self.measured) / self.sigma, 0.0)
-        return jnp.where(ok, r, jnp.where(self.mask, _FAILED_RESIDUAL, 0.0)).ravel()
-
-
-def _residual_fn(u, problem: _Problem):
-    return _residuals(u, problem), None
-
-
-# optimistix's Gauss-Newton family takes the Jacobian by `jax.linearize`.
-# Through a diffrax while loop that cannot separate the primal from the
-# tangents: every application of the linear map re-runs the whole solve, and
-# materialising the Jacobian for the QR step ran it once per parameter on top
-# of the residuals (a step cost 7 predictions).  The residuals' JVP rule below
-# computes the Jacobian with the residuals in one forward pass (`jax.jacfwd`:
-# the primal once, the tangents batched), so `linearize` keeps a plain matrix
-# product for its linear part.  Measured, bench_body.py (RESULTS "Planar bodies
-# from measured states").
-@eqx.filter_custom_jvp
-def _residuals(u, problem: _Problem):
-    return problem.residuals(u)
-
-
-@_residuals.def_jvp
-def _residuals_jvp(primals, tangents):
-    u, problem = primals
-    t_u, _ = tangents  # the data are not differentiated
-    jac, r = _value_and_jacobian(u, problem)
-    return r, jac @ t_u
-
-
-def _value_and_jacobian(u, problem: _Problem):
-    """``(J, r)``: the residuals' Jacobian and the residuals, one forward pass."""
-
-    def both(v):
-        r = problem.residuals(v)
-        return r, r
-
-    return jax.jacfwd(both, has_aux=True)(u)
-
-
-# Compiled once per problem structure (scene, law, free parameters, number of
-# rows), not per call: the problem is an argument, so a second fit of the same
-# kind in a process reuses the traced programs instead of tracing them again.
-@eqx.filter_jit
-def _predictions(problem: _Problem, u):
-    return problem.predictions(u)
-
-
-@eqx.filter_jit
-def _jacobian(problem: _Problem, u):
-    return _value_and_jacobian(u, problem)[0]
-
-
-_init = eqx.filter_jit(lambda solver, *args: solver.init(*args))
-_step = eqx.filter_jit(lambda solver, *args: solver.step(*args))
-_terminate = eqx.filter_jit(lambda solver, *args: solver.terminate(*args))
 
 
 def fit(
@@ -328,6 +215,7 @@ def fit(
     learning_rate: float = 0.05,
     progress: bool = False,
     chunk_size: int | None | str = "auto",
+    subsample: int | None | str = "auto",
 ) -> FitResult:
     """Fit the free parameters of ``experiment`` to the measurements in ``data``.
 
@@ -345,11 +233,21 @@ def fit(
       ``"adam"`` or ``"lbfgs"``.
     - `max_steps`, `rtol`, `atol`: iteration budget and tolerances (on the
       unconstrained parameters, i.e. relative changes); `learning_rate` for adam.
+      The least-squares solvers stop where the Gauss-Newton step from the
+      current point is below ``atol + rtol |u|`` in every parameter (or
+      optimistix's own test holds first).
     - `progress`: print a progress bar to stderr.
     - `chunk_size`: rows solved together (an integer >= 1), or None for all
-      rows at once (one ``vmap``). ``"auto"`` (default): 8 on a CPU, where
-      impacts of different lengths then wait less for the longest of a batch,
-      and all rows on an accelerator.
+      rows at once (one ``vmap``). ``"auto"`` (default): on a CPU, chunks of
+      32 for the least-squares solvers (whose rows are sorted by their step
+      counts at the start, so that the impacts of a chunk take similar numbers
+      of steps) and 8 otherwise; all rows on an accelerator.
+    - `subsample`: rows of a warm start (least-squares solvers, rows in
+      chunks): the solver first iterates on this many rows drawn at random
+      (seeded, reproducible), then goes on from there with every row, to the
+      same tolerances; the estimates are those of all rows.  ``"auto"``
+      (default): ``max(256, 64 p)`` rows for ``p`` free parameters, when the
+      file has at least 4 times as many; None: all rows from the start.
 
     **Returns:** a `FitResult`.
     """
@@ -362,6 +260,9 @@ def fit(
         )
     if solver not in _SOLVERS:
         raise ValueError(f"`solver` must be one of {_SOLVERS}, got {solver!r}")
+    gauss_newton = solver in ("levenberg-marquardt", "gauss-newton")
+    _check_subsample(subsample)
+    auto_chunks = isinstance(chunk_size, str) and chunk_size == "auto"
     data, problem, u0, x0, absolute = prepare(
         data, experiment, free, start, bounds, outputs, chunk_size
     )
@@ -380,20 +281,21 @@ def fit(
         )
     # Every row must be predictable at the start: name the ones that are not
     # before minutes of iterations.
-    _check_predictions(forward, u0, data, "at the start values")
-    with _derivatives_named(problem.experiment.settings):
-        if solver in ("levenberg-marquardt", "gauss-newton"):
-            u, steps, converged = _least_squares(
-                forward, u0, solver, max_steps, rtol, atol, bar
-            )
-        else:
+    if not gauss_newton:
+        _check_predictions(forward, u0, data, "at the start values")
+        with _derivatives_named(problem.experiment.settings):
             u, steps, converged = _minimise(
                 problem, u0, solver, max_steps, rtol, atol, learning_rate, bar
             )
+        final = warm_info = None
+    else:
+        u, steps, converged, final, warm_info, forward = _fit_least_squares(
+            forward, u0, data, solver, max_steps, rtol, atol, bar, auto_chunks,
+            subsample,
+        )  # fmt: skip
     if bar:
         bar.close()
         bar.message("covariance and residuals at the fitted values...", end="\n")
-    _check_predictions(forward, u, data, "at the fitted values")
     return _result(
         forward,
         data,
@@ -405,7 +307,100 @@ def fit(
         x0,
         absolute,
         problem.experiment.settings,  # the user's (the fit used forward mode)
+        final=final,
+        warm=warm_info,
     )
+
+
+# Rows sorted by their step counts are solved in chunks of this size on a CPU:
+# 2,000 planar impacts of bench_body.py took 9.4 s in sorted chunks of 8, 7.1 s
+# of 32 and 7.4 s of 128 (unsorted chunks of 8: 12.1 s).
+_SORTED_CHUNK = 32
+# Warm start: rows per free parameter, the least number of rows, and how many
+# times more rows the file must hold for a subsample to pay.
+_WARM_PER_PARAMETER, _WARM_MIN, _WARM_FACTOR = 64, 256, 4
+# The warm start stops where its Gauss-Newton step is below this (relative):
+# far below the spread of estimates from a subsample, far above the rounding
+# of the final iterations.
+_WARM_TOL = 1e-4
+
+
+def _check_subsample(subsample) -> None:
+    if subsample is None or (isinstance(subsample, str) and subsample == "auto"):
+        return
+    if isinstance(subsample, bool) or not isinstance(subsample, int) or subsample < 2:
+        raise ValueError(
+            f"subsample={subsample!r}: expected an integer >= 2 (rows of the warm "
+            "start), None (all rows from the start) or 'auto'"
+        )
+
+
+def _fit_least_squares(
+    problem, u0, data, solver, max_steps, rtol, atol, bar, auto_chunks, subsample
+):
+    """`fit` with Gauss-Newton or Levenberg-Marquardt (`diffimpact._lsq`):
+    the rows checked at the start in blocks (one per core), sorted by their
+    solver steps there, a warm start on a subsample, then every row.
+    Returns ``(u, steps, converged, (r, J) at u, (rows, iterations) of the
+    warm start or None, problem)``."""
+    n = data.n
+    if auto_chunks and jax.default_backend() == "cpu":
+        problem = dataclasses.replace(
+            problem, chunk_size=_SORTED_CHUNK if n > _SORTED_CHUNK else None
+        )
+    chunked = problem.chunk_size is not None
+    n_blocks = workers() if chunked else 1
+    blocks = RowBlocks(problem, np.arange(n), n_blocks)
+    try:
+        start = blocks.predictions(u0)
+        _check_predictions(problem, u0, data, "at the start values", start)
+        steps = np.asarray(start[2])
+        k = _subsample_rows(subsample, n, len(problem.names), problem.chunk_size)
+        rng = np.random.default_rng(0)
+        chosen = np.zeros(n, bool)
+        if k and chunked:
+            chosen[rng.choice(n, k, replace=False)] = True
+        by_cost = lambda rows: rows[np.argsort(steps[rows], kind="stable")]  # noqa: E731
+        # the warm rows first in every block (`RowBlocks` deals rows out in
+        # turn), each part by its solver steps
+        picked, rest = np.nonzero(chosen)[0], np.nonzero(~chosen)[0]
+        order = np.concatenate([by_cost(picked), by_cost(rest)])
+        blocks.close()
+        blocks = RowBlocks(problem, order, n_blocks)
+        with _derivatives_named(problem.experiment.settings):
+            u, done, warm_info = jnp.asarray(u0), 0, None
+            if chosen.any():
+                warm = RowBlocks(problem, order, n_blocks, fitted=chosen)
+                try:
+                    if bar:
+                        bar.label = f"{solver}, {k} rows"
+                    u, done, _, _ = least_squares(
+                        warm, u, solver, max_steps, max(rtol, _WARM_TOL),
+                        max(atol, _WARM_TOL), bar,
+                    )  # fmt: skip
+                finally:
+                    warm.close()
+                warm_info = (k, done)
+                if bar:
+                    bar.label = f"{solver}, all rows"
+            u, more, converged, final = least_squares(
+                blocks, u, solver, max(max_steps - done, 1), rtol, atol, bar,
+                first=done,
+            )  # fmt: skip
+    finally:
+        blocks.close()
+    return u, done + more, converged, final, warm_info, problem
+
+
+def _subsample_rows(subsample, n: int, p: int, chunk: int | None) -> int | None:
+    """Rows of the warm start, or None for none."""
+    if subsample is None or chunk is None:
+        return None
+    if isinstance(subsample, str):  # "auto"
+        k = max(_WARM_MIN, _WARM_PER_PARAMETER * p)
+        k = -(-k // chunk) * chunk
+        return k if _WARM_FACTOR * k <= n else None
+    return subsample if subsample < n else None
 
 
 def prepare(data, experiment, free, start, bounds, outputs, chunk_size):
@@ -547,8 +542,10 @@ def _check_bounds(experiment, free, transforms) -> None:
                 ) from None
 
 
-def _check_predictions(problem: _Problem, u, data, when: str) -> None:
-    pred, codes = _predictions(problem, u)
+def _check_predictions(problem: _Problem, u, data, when: str, computed=None):
+    """Every row predicted at ``u`` (`computed`: `_predictions` there, if
+    already known), or a ValueError naming the rows that are not."""
+    pred, codes, _ = _predictions(problem, u) if computed is None else computed
     codes = np.asarray(codes)
     # A prediction that is not finite where a measurement is fitted (say a
     # tangential COR at 0 deg, with no tangential approach) fails its row too.
@@ -628,44 +625,6 @@ def _targets(data: ExperimentData, outputs, experiment):
     return quantities, measured, sigma, mask, absolute
 
 
-def _least_squares(problem, u0, solver_name, max_steps, rtol, atol, bar):
-    if solver_name == "levenberg-marquardt":
-        solver = optx.LevenbergMarquardt(rtol=rtol, atol=atol)
-    else:
-        solver = optx.GaussNewton(rtol=rtol, atol=atol)
-    fn, options, tags = _residual_fn, {}, frozenset()
-    f_struct, aux_struct = jax.eval_shape(lambda: fn(u0, problem))
-    state = _init(solver, fn, u0, problem, options, f_struct, aux_struct, tags)
-    # One compiled step at a time (optimistix's init/step/terminate interface)
-    # so that the command line can show progress; the compiled step is reused.
-    u, steps, converged = u0, 0, False
-    best, stalled = math.inf, 0
-    while steps < max_steps:
-        done, result = _terminate(solver, fn, u, problem, options, state, tags)
-        if bool(done):
-            converged = result == optx.RESULTS.successful
-            break
-        u, state, _ = _step(solver, fn, u, problem, options, state, tags)
-        steps += 1
-        r = state.f_info.residual
-        cost = 0.5 * float(jnp.sum(r**2))
-        if bar:
-            bar.update(steps, cost)
-        # At the optimum of a noisy problem the residuals carry the solver's
-        # own noise (~1e-9 relative), so a step's actual decrease can fall below
-        # the model's prediction and LM rejects every further step without
-        # ever meeting its Cauchy test.  A cost that has stopped decreasing for
-        # _STALL steps is stationary: stop there.
-        if cost < best * (1.0 - 1e-10):
-            best, stalled = cost, 0
-        else:
-            stalled += 1
-            if stalled >= _STALL:
-                converged = True
-                break
-    return u, steps, bool(converged)
-
-
 def _minimise(problem, u0, name, max_steps, rtol, atol, learning_rate, bar):
     def loss(u):
         r = problem.residuals(u)
@@ -707,15 +666,39 @@ def _minimise(problem, u0, name, max_steps, rtol, atol, learning_rate, bar):
 
 
 def _result(
-    problem, data, u, steps, converged, solver, seconds, x0, absolute, user_settings
+    problem,
+    data,
+    u,
+    steps,
+    converged,
+    solver,
+    seconds,
+    x0,
+    absolute,
+    user_settings,
+    final=None,
+    warm=None,
 ):
+    """The `FitResult` at ``u``.  `final`: the residuals and their Jacobian
+    at ``u`` from the last step, if known (else both are computed here);
+    `warm`: ``(rows, iterations)`` of the warm start."""
     names = problem.names
     x = np.array([float(v) for v in problem.parameters(u)])
-    pred = np.asarray(_predictions(problem, u)[0])
-    jac_u = np.asarray(_jacobian(problem, u))
     mask = np.asarray(problem.mask)
     measured = np.where(mask, np.asarray(problem.measured), np.nan)
     sigma = np.asarray(problem.sigma)
+    if final is not None:
+        r = final[0].reshape(mask.shape)
+        # a row that failed (its sentinel residual) or is undefined there is
+        # named by the full check, which raises
+        if np.any(mask & ((r == _FAILED_RESIDUAL) | ~np.isfinite(r))):
+            _check_predictions(problem, u, data, "at the fitted values")
+        pred, jac_u = np.where(mask, measured + sigma * r, np.nan), final[1]
+    else:
+        computed = _predictions(problem, u)
+        _check_predictions(problem, u, data, "at the fitted values", computed)
+        pred = np.asarray(computed[0])
+        jac_u = np.asarray(_jacobian(problem, u))
     resid = np.where(mask, (pred - measured) / sigma, np.nan)
     cost = 0.5 * float(np.nansum(resid**2))
     m, p = int(mask.sum()), len(x)
@@ -790,6 +773,12 @@ def _result(
                     f"{names[i]} and {names[j]} are strongly correlated "
                     f"({corr[i, j]:+.3f}): the data barely separate them"
                 )
+    if final is not None and int(final[2]):
+        notes.append(
+            f"the forward-mode derivatives of {int(final[2])} row(s) diverged at "
+            "the fitted values (a solver artefact, e.g. in a stick phase); their "
+            "derivatives, and so the covariance, come from central differences"
+        )
     if not converged:
         notes.append(
             f"{solver} did not converge in {steps} iterations; raise max_steps or "
@@ -826,6 +815,7 @@ def _result(
         ),
         sigma_measured=tuple(q in data.sigmas for q in problem.quantities),
         lines=data.lines,
+        subsample=warm or (0, 0),
     )
 
 

@@ -477,6 +477,7 @@ def predict(
     *,
     throw: bool = True,
     _guarded: bool = True,
+    _steps: bool = False,
 ) -> dict:
     """Simulate one impact and return every measurable quantity it gives (SI).
 
@@ -490,11 +491,16 @@ def predict(
 
     Keys follow the experiment CSV quantities (``contact_time``,
     ``cor_normal``, ...); ``cor_tangential`` is the centre-of-mass tangential
-    velocity after over before.  (`_guarded`: as in `simulate`.)
+    velocity after over before.  (`_guarded`: as in `simulate`; `_steps`: add
+    ``"num_steps"``, the solver's step count, 0 without an ODE, which `fit`
+    uses to group impacts of similar cost.)
     """
     e = with_inputs(experiment, inputs or {})
     if isinstance(e.law, RigidContact):
-        return _predict_rigid(e, throw)
+        out = _predict_rigid(e, throw)
+        if _steps:
+            out["num_steps"] = jnp.zeros((), jnp.int32)
+        return out
     r = simulate(
         e.scene,
         e.law,
@@ -522,6 +528,8 @@ def predict(
     _add_cor_tangential(e.scene, out)
     if not throw:
         out["result"] = r.result
+    if _steps:
+        out["num_steps"] = jnp.asarray(r.num_steps, jnp.int32)
     return out
 
 

@@ -45,13 +45,10 @@ import numpy as np
 from ._cli_files import open_new
 from ._diagnostics import ESS_PER_CHAIN_MIN, RHAT_MAX, ess_bulk, ess_tail, split_rhat
 from ._fit import (
-    _FAILED_RESIDUAL,
     FitResult,
     IdentifiabilityWarning,
     _json_ready,
-    _predictions,
     _Progress,
-    _residuals,
     _with_adjoint,
     build,
     default_bounds,
@@ -61,6 +58,7 @@ from ._fit import (
 from ._observables import get_path, resolve_parameter, with_parameters
 from ._posterior_plots import corner, predictive
 from ._priors import AbstractPrior, default_prior, parse_prior, prior_draws_u
+from ._residuals import _FAILED_RESIDUAL, _predictions, _residuals
 from ._result import RESULTS, SolverError
 
 _QUANTILES = (0.05, 0.5, 0.95)
@@ -739,8 +737,8 @@ def _predictive(problem, pos, data, relative, seed) -> dict:
     take = np.linspace(0, len(flat) - 1, n_draws).astype(int)
     # one compiled prediction (the fit's), called per draw
     out = [_predictions(problem, jnp.asarray(u)) for u in flat[take]]
-    pred = np.stack([np.asarray(p) for p, _ in out])
-    codes = np.stack([np.asarray(c) for _, c in out])
+    pred = np.stack([np.asarray(p) for p, _, _ in out])
+    codes = np.stack([np.asarray(c) for _, c, _ in out])
     mask = np.asarray(problem.mask)
     ok = (np.asarray(codes) == RESULTS.successful._value)[..., None] & mask
     pred = np.where(ok, pred, np.nan)
