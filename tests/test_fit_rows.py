@@ -1,0 +1,141 @@
+"""Least squares over many rows (`diffimpact._lsq`): row blocks on threads,
+rows in solving order, the warm start on a subsample, and the central
+differences that replace diverged forward-mode derivatives.  Normal impacts
+on the quadrature path: exact and cheap, so every check is to rounding."""
+
+import diffrax
+import numpy as np
+import pytest
+
+import diffimpact as di
+from diffimpact import _lsq
+from diffimpact._fit import _with_adjoint, prepare
+from diffimpact._residuals import _predictions, _value_and_jacobian
+
+VELOCITIES = np.linspace(0.2, 3.0, 24)
+
+
+@pytest.fixture(scope="module")
+def noisy(tmp_path_factory):
+    """24 normal impacts at S_y = 400 MPa, COR and contact time with 0.5 %
+    seeded noise (so the optimum has non-zero residuals)."""
+    exp = di.Experiment.default("normal_impact")
+    rng = np.random.default_rng(3)
+    cols = {"impact_velocity_m_s": VELOCITIES}
+    out = [di.predict(exp, {"impact_velocity": v}) for v in VELOCITIES]
+    for key, col, scale in (
+        ("cor_normal", "cor_normal", 1.0),
+        ("contact_time", "contact_time_us", 1e6),
+    ):
+        clean = np.array([float(o[key]) for o in out]) * scale
+        cols[col] = clean * (1 + 0.005 * rng.standard_normal(len(clean)))
+    path = tmp_path_factory.mktemp("rows") / "noisy.csv"
+    di.write_experiments(path, cols, scene="normal_impact", provenance="test")
+    return path, exp
+
+
+def _problem(path, exp, chunk):
+    data, problem, u0, _, _ = prepare(
+        path, exp, ("yield_strength",), {"yield_strength": 300e6}, None, None, chunk
+    )
+    return data, _with_adjoint(problem, diffrax.ForwardMode()), u0
+
+
+def test_blocks_in_any_order_give_the_rows_predictions(noisy):
+    """Three blocks of a shuffled order, one thread each, padded to equal
+    length: every row's prediction, code and step count back in its place,
+    identical to one program over the file (chunk composition does not enter
+    a quadrature row)."""
+    data, problem, u0 = _problem(*noisy, 4)
+    order = np.random.default_rng(0).permutation(data.n)
+    blocks = _lsq.RowBlocks(problem, order, 3)
+    try:
+        got = blocks.predictions(u0)
+        r, jac = blocks.map(_lsq._block_values_and_jacobian, u0)
+    finally:
+        blocks.close()
+    want = _predictions(problem, u0)
+    for g, w in zip(got, want, strict=True):
+        np.testing.assert_array_equal(g, np.asarray(w))
+    jac_w, r_w = _value_and_jacobian(u0, problem)
+    np.testing.assert_allclose(r.reshape(-1), np.asarray(r_w), rtol=0, atol=1e-14)
+    np.testing.assert_allclose(jac.reshape(-1, 1), np.asarray(jac_w), rtol=1e-12)
+    with pytest.raises(ValueError, match="permutation"):
+        _lsq.RowBlocks(problem, order[:-1], 2)
+
+
+def test_central_differences_replace_flagged_rows(noisy, monkeypatch):
+    """Every row flagged (threshold below 1): the Jacobian from central
+    differences of the predictions agrees with forward mode to 1e-6 (step
+    1e-4 in log S_y: truncation ~1e-8, rounding of the quadrature ~1e-12 /
+    1e-4), and the count of differenced rows says so."""
+    data, problem, u0 = _problem(*noisy, 8)
+    blocks = _lsq.RowBlocks(problem, np.arange(data.n), 2)
+    try:
+        exact = blocks.evaluate(u0)
+        monkeypatch.setattr(_lsq, "_DIVERGED", 0.5)
+        fd = blocks.evaluate(u0)
+    finally:
+        blocks.close()
+    assert int(exact.differenced) == 0
+    assert int(fd.differenced) > data.n // 2  # all rows above half the median
+    np.testing.assert_array_equal(fd.residual, exact.residual)
+    err = np.abs(np.asarray(fd.jacobian) - np.asarray(exact.jacobian))
+    assert np.max(err / np.abs(np.asarray(exact.jacobian))) < 1e-6
+
+
+def test_diverged_rows_are_those_far_above_the_median():
+    jac = np.ones((6, 2, 1))
+    jac[2] = 1e45  # the size seen in a planar fit
+    jac[4, 0, 0] = np.nan
+    jac[5] = 50.0  # large, but within the spread of correct rows
+    mask = np.ones((6, 2), bool)
+    np.testing.assert_array_equal(_lsq._diverged_rows(jac, mask), [2, 4])
+    mask[2] = False  # a row not fitted is never flagged (nor differenced)
+    np.testing.assert_array_equal(_lsq._diverged_rows(jac, mask), [4])
+
+
+def test_warm_start_reaches_the_same_optimum(noisy):
+    """A warm start on 8 of 24 rows, then all rows: the same estimate and
+    error as iterating on all rows from the start (both to rtol 1e-6 of the
+    log parameter, so within a few 1e-7), and the result says how it went."""
+    path, exp = noisy
+    kw = dict(free="yield_strength", start={"yield_strength": 250e6}, chunk_size=4)
+    whole = di.fit(path, exp, subsample=None, **kw)
+    warm = di.fit(path, exp, subsample=8, **kw)
+    assert whole.subsample == (0, 0) and warm.subsample[0] == 8
+    assert 1 <= warm.subsample[1] < warm.iterations
+    assert warm.converged and whole.converged
+    assert abs(warm.values[0] / whole.values[0] - 1) < 1e-6
+    assert abs(warm.std_errors[0] / whole.std_errors[0] - 1) < 1e-5
+    assert "iterations on 8 rows" in warm.summary()
+    assert warm.to_dict()["subsample"] == {"rows": 8, "iterations": warm.subsample[1]}
+    # the truth lies within the noise: 0.5 % noise on 48 values
+    assert abs(warm.values[0] / 400e6 - 1) < 4 * warm.std_errors[0] / 400e6
+
+
+@pytest.mark.parametrize("bad", [1, 0, -3, 2.5, True, "half"])
+def test_a_bad_subsample_is_named(noisy, bad):
+    path, exp = noisy
+    with pytest.raises(ValueError, match="subsample"):
+        di.fit(path, exp, free="yield_strength", subsample=bad)
+
+
+def test_the_fits_predictions_are_the_models_at_its_estimate(noisy):
+    """With the default chunking (sorted rows, one block per core) the fit's
+    predictions come back in the file's order and are the model's at the
+    estimate.  They are the last evaluation moved by the last (untaken-solve)
+    Gauss-Newton step to first order: |J| step^2 ~ 1e-12 relative at most,
+    hence 1e-10."""
+    path, exp = noisy
+    r = di.fit(path, exp, free="yield_strength", start={"yield_strength": 250e6})
+    assert _lsq.workers() >= 1 and r.converged
+    direct = np.array(
+        [
+            float(di.predict(r.experiment, {"impact_velocity": v})["cor_normal"])
+            for v in VELOCITIES
+        ]
+    )
+    k = r.quantities.index("cor_normal")
+    np.testing.assert_allclose(r.predicted[:, k], direct, rtol=1e-10)
+    assert np.isfinite(r.std_errors[0])
