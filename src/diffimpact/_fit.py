@@ -65,7 +65,6 @@ _RANK_TOL = 1e-6
 # Where a direction is undetermined, its variance is reported from this floor
 # (so the errors come out huge and the correlation +-1, not infinite or NaN).
 _SV_FLOOR = 1e-9
-_STALL = 4
 # Default bounds of parameters whose domain is not (0, inf), by field name.
 _DOMAINS = {
     "poisson_ratio": (-1.0, 0.5),
