@@ -50,7 +50,6 @@ from ._observables import (
 from ._residuals import (
     _FAILED_RESIDUAL,
     _chunk_size,
-    _jacobian,
     _predictions,
     _Problem,
 )
@@ -686,18 +685,19 @@ def _result(
     mask = np.asarray(problem.mask)
     measured = np.where(mask, np.asarray(problem.measured), np.nan)
     sigma = np.asarray(problem.sigma)
-    if final is not None:
-        r = final[0].reshape(mask.shape)
-        # a row that failed (its sentinel residual) or is undefined there is
-        # named by the full check, which raises
-        if np.any(mask & ((r == _FAILED_RESIDUAL) | ~np.isfinite(r))):
-            _check_predictions(problem, u, data, "at the fitted values")
-        pred, jac_u = np.where(mask, measured + sigma * r, np.nan), final[1]
-    else:
-        computed = _predictions(problem, u)
-        _check_predictions(problem, u, data, "at the fitted values", computed)
-        pred = np.asarray(computed[0])
-        jac_u = np.asarray(_jacobian(problem, u))
+    if final is None:  # the optax minimisers: evaluate at the optimum
+        blocks = RowBlocks(problem, np.arange(data.n), workers())
+        try:
+            e = blocks.evaluate(jnp.asarray(u))
+        finally:
+            blocks.close()
+        final = tuple(np.asarray(x) for x in (e.residual, e.jacobian, e.differenced))
+    r = final[0].reshape(mask.shape)
+    # a row that failed (its sentinel residual) or is undefined there is named
+    # by the full check, which raises
+    if np.any(mask & ((r == _FAILED_RESIDUAL) | ~np.isfinite(r))):
+        _check_predictions(problem, u, data, "at the fitted values")
+    pred, jac_u = np.where(mask, measured + sigma * r, np.nan), final[1]
     resid = np.where(mask, (pred - measured) / sigma, np.nan)
     cost = 0.5 * float(np.nansum(resid**2))
     m, p = int(mask.sum()), len(x)

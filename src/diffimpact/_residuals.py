@@ -168,11 +168,6 @@ def _predictions(problem: _Problem, u):
     return problem.predictions(u)
 
 
-@eqx.filter_jit
-def _jacobian(problem: _Problem, u):
-    return _value_and_jacobian(u, problem)[0]
-
-
 _init = eqx.filter_jit(lambda solver, *args: solver.init(*args))
 _step = eqx.filter_jit(lambda solver, *args: solver.step(*args))
 _terminate = eqx.filter_jit(lambda solver, *args: solver.terminate(*args))
