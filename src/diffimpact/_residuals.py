@@ -124,19 +124,14 @@ class _Problem(eqx.Module):
         return jnp.where(ok, r, jnp.where(self.mask, _FAILED_RESIDUAL, 0.0)).ravel()
 
 
-def _residual_fn(u, problem: _Problem):
-    return _residuals(u, problem), None
-
-
-# optimistix's Gauss-Newton family takes the Jacobian by `jax.linearize`.
-# Through a diffrax while loop that cannot separate the primal from the
-# tangents: every application of the linear map re-runs the whole solve, and
-# materialising the Jacobian for the QR step ran it once per parameter on top
-# of the residuals (a step cost 7 predictions).  The residuals' JVP rule below
-# computes the Jacobian with the residuals in one forward pass (`jax.jacfwd`:
-# the primal once, the tangents batched), so `linearize` keeps a plain matrix
-# product for its linear part.  Measured, bench_body.py (RESULTS "Planar bodies
-# from measured states").
+# Differentiated through a diffrax while loop, `jax.linearize` cannot separate
+# the primal from the tangents: every application of the linear map re-runs
+# the whole solve (a Levenberg-Marquardt step through it cost 7 predictions).
+# The residuals' JVP rule below computes the Jacobian with the residuals in
+# one forward pass (`jax.jacfwd`: the primal once, the tangents batched), so
+# the linear part is a plain matrix product.  The posterior's log density
+# differentiates the residuals through it; `fit` evaluates the Jacobian
+# itself (`diffimpact._lsq`).
 @eqx.filter_custom_jvp
 def _residuals(u, problem: _Problem):
     return problem.residuals(u)
