@@ -346,18 +346,17 @@ def _fit_least_squares(
         problem = dataclasses.replace(
             problem, chunk_size=_SORTED_CHUNK if n > _SORTED_CHUNK else None
         )
-    chunked = problem.chunk_size is not None
-    n_blocks = workers() if chunked else 1
+    n_blocks = workers() if problem.chunk_size is not None else 1
     blocks = RowBlocks(problem, np.arange(n), n_blocks)
     try:
         start = blocks.predictions(u0)
         _check_predictions(problem, u0, data, "at the start values", start)
         steps = np.asarray(start[2])
+        # (None without chunks: the skipped chunks are what makes it cheap)
         k = _subsample_rows(subsample, n, len(problem.names), problem.chunk_size)
-        rng = np.random.default_rng(0)
         chosen = np.zeros(n, bool)
-        if k and chunked:
-            chosen[rng.choice(n, k, replace=False)] = True
+        if k:
+            chosen[np.random.default_rng(0).choice(n, k, replace=False)] = True
         by_cost = lambda rows: rows[np.argsort(steps[rows], kind="stable")]  # noqa: E731
         # the warm rows first in every block (`RowBlocks` deals rows out in
         # turn), each part by its solver steps
