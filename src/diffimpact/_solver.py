@@ -89,6 +89,7 @@ _POSITIVE = (
     "max_time",
     "event_tol",
     "factormax",
+    "switch_step",
 )
 _OPTIONAL_POSITIVE = ("dtmax", "onset_step")
 _COUNTS = ("max_steps", "max_impacts")
