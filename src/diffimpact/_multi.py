@@ -318,10 +318,10 @@ def simulate_span(
 
     **Returns:** a `SpanResult`.  ``jax.jit``, ``jax.grad`` and
     ``jax.vmap`` compose with it; every number of the scene, law and friction
-    is a traced field.  Known limit: with `JacksonGreen` the bouncing bar's
-    gradients with respect to the drop height are only percent-accurate at
-    the default tolerance after the first impact (1e-3 at rtol 1e-12, 3e-5
-    at 1e-13; docs/limits.md); the slider-crank's are exact (3e-6).
+    is a traced field.  Known limit: with `JacksonGreen`, gradients with
+    respect to what moves the impacts in time (the bar's drop height) are
+    accurate to about 1e-3 at the default tolerance, depending on the step
+    sequence (docs/limits.md); 3e-5 at rtol 1e-13.
     """
     if not isinstance(scene, AbstractMechanism):
         raise TypeError(

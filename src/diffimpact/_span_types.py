@@ -46,11 +46,10 @@ class SpanSettings(eqx.Module):
       every switch (contact, loading/unloading, elastic/elasto-plastic) is
       localised so: the adjoint differentiates the solve on its step grid,
       and a step that straddles a switch carries its local error into the
-      gradient.  Measured, JG bar (0.3 m drop, three impacts): the gradients
-      w.r.t. the yield strength agree with central differences of a 1e-13
-      solve to <= 2.7e-3 at 1e-9, <= 4e-3 at 1e-3; w.r.t. the drop height
-      1.4e-6 (first impact) at 1e-9 against 9.5e-4 at 1e-3.  It costs about
-      1.5x the steps of 1e-3 (benchmarks/RESULTS.md).
+      gradient.  Measured, JG bar (0.3 m drop, three impacts), against
+      central differences of a 1e-13 solve: w.r.t. the drop height 6.5e-5
+      at 1e-9, 1.1e-2 at 1e-7, 0.13 at 1e-3.  It costs about 1.6x the steps
+      of 1e-3 (benchmarks/RESULTS.md).
     - `adjoint`: as in `SolverSettings`.
     """
 
