@@ -180,7 +180,7 @@ class _Span(eqx.Module):
         step that straddles a switch is off by its local error there
         (measured, Jackson-Green bar, three impacts: w.r.t. the drop height
         6.5e-5 with every switch localised to 1e-9, 9.4e-3 without the
-        release, 0.13 with the switches localised to 1e-3;
+        release, 1.1e-2 with them localised to 1e-7;
         benchmarks/RESULTS.md).
         The switch is where the force (not the penetration) leaves zero: the
         ADAMS law's ``max(0, k g^e + c(g) g_dot)`` lets go at ``g > 0`` on the

@@ -48,7 +48,7 @@ class SpanSettings(eqx.Module):
       and a step that straddles a switch carries its local error into the
       gradient.  Measured, JG bar (0.3 m drop, three impacts), against
       central differences of a 1e-13 solve: w.r.t. the drop height 6.5e-5
-      at 1e-9, 1.1e-2 at 1e-7, 0.13 at 1e-3.  It costs about 1.6x the steps
+      at 1e-9, 1.1e-2 at 1e-7.  It costs about 1.6x the steps
       of 1e-3 (benchmarks/RESULTS.md).
     - `adjoint`: as in `SolverSettings`.
     """
