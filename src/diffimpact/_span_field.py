@@ -246,9 +246,10 @@ def _history_rate(p: _Span, d, v, d_m):
     of the penetration scale wide: values were right, but the derivative of
     the discrete solve missed the switch, e.g. 56 % to 220 % off for the
     bar's first impulse w.r.t. the drop height.)  Not modelled: a surface
-    that comes back into its own dent before the bodies part, i.e. reloading
-    in contact after partial unloading, forgets the dent within about
-    ``eps``: it reloads along the virgin curve.
+    that comes back into its own dent before the bodies part (reloading in
+    contact after partial unloading) sees its offset shrink as
+    ``(d_1 / d)^4`` with further compression from ``d_1``, i.e. it drifts
+    back to the virgin loading curve instead of reloading elastically.
     """
     w = step(v / p.speed, p.settings.velocity_width)
     eps = 1e-3 * p.length
