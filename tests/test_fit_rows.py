@@ -85,20 +85,28 @@ def test_central_differences_replace_flagged_rows(noisy, monkeypatch):
 
 
 def test_diverged_rows_are_those_far_above_the_median():
-    jac = np.ones((6, 2, 1))
+    """Per parameter: a row flagged when its derivatives w.r.t. one
+    parameter exceed 10 times the median row's, whatever the other column."""
+    jac = np.ones((20, 2, 2))
+    jac[:, :, 1] = 1e6  # the columns have their own scales
     jac[2] = 1e45  # the size seen in a planar fit
     jac[4, 0, 0] = np.nan
-    jac[5] = 50.0  # large, but within the spread of correct rows
-    mask = np.ones((6, 2), bool)
-    np.testing.assert_array_equal(_lsq._diverged_rows(jac, mask), [2, 4])
+    jac[5, :, 0] = 9.0  # large, but within the spread of correct rows
+    jac[6, 1, 0] = 16.0  # a diverged derivative seen: 16 times the median
+    jac[7, 0, 1] = 9e6
+    mask = np.ones((20, 2), bool)
+    np.testing.assert_array_equal(_lsq._diverged_rows(jac, mask), [2, 4, 6])
     mask[2] = False  # a row not fitted is never flagged (nor differenced)
-    np.testing.assert_array_equal(_lsq._diverged_rows(jac, mask), [4])
+    np.testing.assert_array_equal(_lsq._diverged_rows(jac, mask), [4, 6])
 
 
 def test_warm_start_reaches_the_same_optimum(noisy):
     """A warm start on 8 of 24 rows, then all rows: the same estimate and
     error as iterating on all rows from the start (both to rtol 1e-6 of the
-    log parameter, so within a few 1e-7), and the result says how it went."""
+    log parameter, so within a few 1e-7), and the result says how it went.
+    The standard errors come from the Jacobian at the last point evaluated,
+    which the stopping rule (`_settled`) allows a step of up to
+    (1 - theta) / theta tolerances from the optimum: 3.3e-5 apart measured."""
     path, exp = noisy
     kw = dict(free="yield_strength", start={"yield_strength": 250e6}, chunk_size=4)
     whole = di.fit(path, exp, subsample=None, **kw)
@@ -107,7 +115,7 @@ def test_warm_start_reaches_the_same_optimum(noisy):
     assert 1 <= warm.subsample[1] < warm.iterations
     assert warm.converged and whole.converged
     assert abs(warm.values[0] / whole.values[0] - 1) < 1e-6
-    assert abs(warm.std_errors[0] / whole.std_errors[0] - 1) < 1e-5
+    assert abs(warm.std_errors[0] / whole.std_errors[0] - 1) < 1e-4
     assert "iterations on 8 rows" in warm.summary()
     assert warm.to_dict()["subsample"] == {"rows": 8, "iterations": warm.subsample[1]}
     # the truth lies within the noise: 0.5 % noise on 48 values
@@ -125,8 +133,10 @@ def test_the_fits_predictions_are_the_models_at_its_estimate(noisy):
     """With the default chunking (sorted rows, one block per core) the fit's
     predictions come back in the file's order and are the model's at the
     estimate.  They are the last evaluation moved by the last (untaken-solve)
-    Gauss-Newton step to first order: |J| step^2 ~ 1e-12 relative at most,
-    hence 1e-10."""
+    Gauss-Newton step to first order, off by its second-order term: the
+    stopping rule (`_settled`) takes a last step of up to (1 - theta) / theta
+    tolerances (~1e-5 of the log parameter), so ~1e-10 relative (2e-10
+    measured), hence 1e-9."""
     path, exp = noisy
     r = di.fit(path, exp, free="yield_strength", start={"yield_strength": 250e6})
     assert _lsq.workers() >= 1 and r.converged
@@ -137,5 +147,5 @@ def test_the_fits_predictions_are_the_models_at_its_estimate(noisy):
         ]
     )
     k = r.quantities.index("cor_normal")
-    np.testing.assert_allclose(r.predicted[:, k], direct, rtol=1e-10)
+    np.testing.assert_allclose(r.predicted[:, k], direct, rtol=1e-9)
     assert np.isfinite(r.std_errors[0])
