@@ -232,8 +232,10 @@ def fit(
     - `max_steps`, `rtol`, `atol`: iteration budget and tolerances (on the
       unconstrained parameters, i.e. relative changes); `learning_rate` for adam.
       The least-squares solvers stop where the Gauss-Newton step from the
-      current point is below ``atol + rtol |u|`` in every parameter (or
-      optimistix's own test holds first).
+      current point is below ``atol + rtol |u|`` in every parameter, or where
+      that step, once taken, lands within it by the contraction of the last
+      steps (linear convergence; the how-to guide says how), or optimistix's
+      own test holds first.
     - `progress`: print a progress bar to stderr.
     - `chunk_size`: rows solved together (an integer >= 1), or None for all
       rows at once (one ``vmap``). ``"auto"`` (default): on a CPU, chunks of
