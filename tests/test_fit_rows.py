@@ -122,6 +122,49 @@ def test_warm_start_reaches_the_same_optimum(noisy):
     assert abs(warm.values[0] / 400e6 - 1) < 4 * warm.std_errors[0] / 400e6
 
 
+def test_a_rising_gauss_newton_step_hands_back_to_the_solver(noisy, monkeypatch):
+    """After the warm start the fit takes Gauss-Newton steps on every row; a
+    trial point whose cost rises hands back to Levenberg-Marquardt from the
+    last point.  Forced here (every trial counts as rising): the same optimum
+    as the unforced fit, to its tolerance (a few 1e-7 of the log parameter)."""
+    path, exp = noisy
+    kw = dict(free="yield_strength", start={"yield_strength": 250e6}, chunk_size=4)
+    plain = di.fit(path, exp, subsample=8, **kw)
+    calls = []
+    real = _lsq.least_squares
+
+    def spy(*args, **kwargs):
+        out = real(*args, **kwargs)
+        calls.append((args[2], kwargs.get("stop_if_rising", False), out[4]))
+        return out
+
+    monkeypatch.setattr(_lsq, "_RISE", -1.0)
+    monkeypatch.setattr(di._fit, "least_squares", spy)
+    forced = di.fit(path, exp, subsample=8, **kw)
+    assert [c[0] for c in calls] == [
+        "levenberg-marquardt",
+        "gauss-newton",
+        "levenberg-marquardt",
+    ]
+    assert calls[1][1:] == (True, True)  # guarded, and it rose
+    assert forced.converged
+    assert abs(forced.values[0] / plain.values[0] - 1) < 1e-6
+
+
+@pytest.mark.parametrize(
+    ("sizes", "settled"),
+    [
+        ([5000.0, 70.0, 4.0], True),  # 2,000 planar impacts: lands at ~0.25
+        ([5000.0, 70.0], False),  # one ratio is not enough
+        ([100.0, 60.0, 1.5], False),  # slow contraction: 1.5 * 0.6 / 0.4
+        ([100.0, 10.0, 8.0], False),  # the last ratio 0.8: not converging
+        ([0.0, 10.0, 0.5], False),  # a zero step: no ratio
+    ],
+)
+def test_the_linear_convergence_stopping_rule(sizes, settled):
+    assert _lsq._settled(sizes) is settled
+
+
 @pytest.mark.parametrize("bad", [1, 0, -3, 2.5, True, "half"])
 def test_a_bad_subsample_is_named(noisy, bad):
     path, exp = noisy
