@@ -415,12 +415,18 @@ def check_rows(
         check_jacobian_rows(scenes, checks, path, lines)
         return
     # Building each row's scene runs its checks op by op: 2,000 planar bodies
-    # took 17 s.  The same checks, vmapped over the rows and compiled once,
-    # find the failing rows (about a second); each of those is then rebuilt
-    # eagerly, which raises the scene's own message.
-    suspects = _failing_rows(experiment.scene, spec, inputs)
+    # took 17 s (8 ms a row).  The same checks, vmapped over the rows and
+    # compiled once (about a second), find the failing rows; each of those is
+    # then rebuilt eagerly, which raises the scene's own message.
+    suspects = None
+    if n > _EAGER_ROWS:
+        suspects = _failing_rows(experiment.scene, spec, inputs)
     for i in range(n) if suspects is None else suspects:
         row_scene(i)
+
+
+# Up to this many rows, checking each eagerly is quicker than compiling.
+_EAGER_ROWS = 64
 
 
 def _failing_rows(scene, spec, inputs: dict):
