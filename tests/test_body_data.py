@@ -97,33 +97,24 @@ def test_compliant_data_is_fitted_and_beats_the_rigid_laws(tmp_path):
 # --8<-- [end:cross-validate]
 
 
-def test_many_rows_are_checked_in_one_pass_and_the_first_bad_one_named(tmp_path):
-    """Above 64 rows the scenes' checks run vmapped (`check_rows`): the same
-    message, for the first failing row, as the row-by-row path gives."""
-    states = _states(100, 4)
-    states["velocity_y_m_s"][40] = 0.5  # moving away from the flat
-    states["velocity_y_m_s"][90] = 1.0
+@pytest.mark.parametrize(
+    ("n", "away", "line"),
+    [
+        (3, [1], 3),
+        # above 64 rows the scenes' checks run vmapped (`check_rows`): the
+        # same message, for the first failing row, as row by row
+        (100, [40, 90], 42),
+        (100, [90], 92),
+    ],
+)
+def test_a_row_that_does_not_approach_is_named(tmp_path, n, away, line):
+    states = _states(n, 3)
+    states["velocity_y_m_s"][away] = 0.5  # moving away from the flat
     truth = di.Experiment(BODY, di.RigidContact(0.7), di.Friction(0.3))
     columns = dict(states)
-    columns["velocity_x_after_m_s"] = np.zeros(100)
+    columns["velocity_x_after_m_s"] = np.zeros(n)
     di.write_experiments(tmp_path / "bad.csv", columns)
-    with pytest.raises(ValueError, match=r"line 42: .*must approach the flat"):
-        di.fit(tmp_path / "bad.csv", truth, ["mu"])
-    states["velocity_y_m_s"][40] = -2.0
-    columns = dict(states, velocity_x_after_m_s=np.zeros(100))
-    di.write_experiments(tmp_path / "nan.csv", columns)
-    with pytest.raises(ValueError, match=r"line 92: .*must approach the flat"):
-        di.fit(tmp_path / "nan.csv", truth, ["mu"])
-
-
-def test_a_row_that_does_not_approach_is_named(tmp_path):
-    states = _states(3, 3)
-    states["velocity_y_m_s"][1] = 0.5  # moving away from the flat
-    truth = di.Experiment(BODY, di.RigidContact(0.7), di.Friction(0.3))
-    columns = dict(states)
-    columns["velocity_x_after_m_s"] = np.zeros(3)
-    di.write_experiments(tmp_path / "bad.csv", columns)
-    with pytest.raises(ValueError, match=r"line 3: .*must approach the flat"):
+    with pytest.raises(ValueError, match=rf"line {line}: .*must approach the flat"):
         di.fit(tmp_path / "bad.csv", truth, ["mu"])
     del columns["velocity_y_m_s"]
     di.write_experiments(tmp_path / "short.csv", columns)
