@@ -249,7 +249,7 @@ def _settled(sizes) -> bool:
     from successive points, in units of the tolerance.  With the contraction
     ``theta``, the larger of the last two ratios of successive steps, the
     distance left after the last step is at most ``theta / (1 - theta)``
-    times it.
+    times it while the contraction holds.
 
     Why: on noisy data Gauss-Newton converges only linearly (the residuals'
     curvature, which it leaves out, does not vanish at the optimum); 2,000
