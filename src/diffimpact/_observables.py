@@ -420,7 +420,7 @@ def check_rows(
     # then rebuilt eagerly, which raises the scene's own message.
     suspects = None
     if n > _EAGER_ROWS:
-        suspects = _failing_rows(experiment.scene, spec, inputs)
+        suspects = _failing_rows(experiment, inputs)
     for i in range(n) if suspects is None else suspects:
         row_scene(i)
 
@@ -429,24 +429,18 @@ def check_rows(
 _EAGER_ROWS = 64
 
 
-def _failing_rows(scene, spec, inputs: dict):
+def _failing_rows(experiment: Experiment, inputs: dict):
     """Rows whose scene fails one of its own checks (`_checks`), found in one
-    vmapped, compiled pass; None where the checks cannot be traced (every row
-    is then checked eagerly)."""
-    names = [spec.inputs[q] for q in inputs]
-    values = [np.asarray(v, dtype=float) for v in inputs.values()]
+    vmapped, compiled pass of `with_inputs`; None where the checks cannot be
+    traced (every row is then checked eagerly)."""
 
     def oks(row):
-        s = eqx.tree_at(
-            lambda s: [getattr(s, f) for f in names],
-            scene,
-            [as_float(x) for x in row],
-            is_leaf=lambda x: x is None,
-        )
-        return jnp.stack([jnp.all(jnp.asarray(c.ok)) for c in s._checks()])
+        scene = with_inputs(experiment, row).scene
+        return jnp.stack([jnp.all(jnp.asarray(c.ok)) for c in scene._checks()])
 
+    rows = {q: jnp.asarray(np.asarray(v, dtype=float)) for q, v in inputs.items()}
     try:
-        ok = np.asarray(jax.jit(jax.vmap(oks))([jnp.asarray(v) for v in values]))
+        ok = np.asarray(jax.jit(jax.vmap(oks))(rows))
     except Exception:  # a check written for concrete values only
         return None
     return np.nonzero(~ok.all(axis=1))[0]
