@@ -84,6 +84,28 @@ def test_central_differences_replace_flagged_rows(noisy, monkeypatch):
     assert np.max(err / np.abs(np.asarray(exact.jacobian))) < 1e-6
 
 
+def test_one_flagged_row_is_differenced_alone(noisy, monkeypatch):
+    """One row flagged, in one of three blocks: its 2 p perturbed solves run
+    side by side with the other blocks skipped; that row's Jacobian agrees
+    with forward mode to 1e-6 (as above) and every other row's is forward
+    mode's own."""
+    data, problem, u0 = _problem(*noisy, 4)
+    blocks = _lsq.RowBlocks(problem, np.arange(data.n), 3)
+    try:
+        exact = blocks.evaluate(u0)
+        monkeypatch.setattr(_lsq, "_diverged_rows", lambda jac, mask: np.array([5]))
+        fd = blocks.evaluate(u0)
+    finally:
+        blocks.close()
+    assert int(fd.differenced) == 1
+    k = np.asarray(problem.mask).shape[1]
+    got, want = np.array(fd.jacobian), np.asarray(exact.jacobian)
+    row = slice(5 * k, 6 * k)
+    assert np.max(np.abs(got[row] - want[row]) / np.abs(want[row])) < 1e-6
+    got[row] = want[row]
+    np.testing.assert_array_equal(got, want)
+
+
 def test_diverged_rows_are_those_far_above_the_median():
     """Per parameter: a row flagged when its derivatives w.r.t. one
     parameter exceed 10 times the median row's, whatever the other column."""

@@ -178,21 +178,37 @@ class RowBlocks:
     def map(self, fn, u):
         """``fn(block, u)`` for every block, in threads; each output (a tuple
         of arrays with rows first) gathered back into the file's row order."""
+        return self._map_points(fn, [u])[0]
 
-        def run(block):
-            return jax.tree.map(np.asarray, jax.block_until_ready(fn(block, u)))
+    def _map_points(self, fn, points, fitted_only=False):
+        """`map` at several points at once: every (point, block) pair is one
+        task of the pool, so that the cores stay busy when only one block has
+        work (``fitted_only``: the blocks without a fitted row are skipped,
+        and their rows of the outputs left at zero)."""
+        blocks = [
+            b
+            for b in range(len(self.blocks))
+            if not fitted_only or self.mask[self.rows[b]].any()
+        ] or [0]
+        tasks = [(i, b) for i in range(len(points)) for b in blocks]
 
-        if len(self.blocks) == 1:
-            outs = [run(self.blocks[0])]
-        else:
-            outs = list(self._pool.map(run, self.blocks))
+        def run(task):
+            i, b = task
+            out = fn(self.blocks[b], points[i])
+            return jax.tree.map(np.asarray, jax.block_until_ready(out))
+
+        outs = [run(tasks[0])] if len(tasks) == 1 else list(self._pool.map(run, tasks))
         gathered = []
-        for k, first in enumerate(outs[0]):
-            full = np.zeros((self.n, *first.shape[1:]), first.dtype)
-            for rows, real, out in zip(self.rows, self.real, outs, strict=True):
-                full[rows] = out[k][real]
-            gathered.append(full)
-        return tuple(gathered)
+        for i in range(len(points)):
+            mine = [(b, out) for (j, b), out in zip(tasks, outs, strict=True) if j == i]
+            full = []
+            for k, first in enumerate(mine[0][1]):
+                values = np.zeros((self.n, *first.shape[1:]), first.dtype)
+                for b, out in mine:
+                    values[self.rows[b]] = out[k][self.real[b]]
+                full.append(values)
+            gathered.append(tuple(full))
+        return gathered
 
     def predictions(self, u):
         """``(predicted, codes, steps)`` of every row, as `_predictions`."""
@@ -225,13 +241,16 @@ class RowBlocks:
         sub = RowBlocks(self.problem, self.order, len(self.blocks), fitted=only)
         try:
             u = np.asarray(u, float)
-            cols = []
-            for j in range(len(u)):
-                e = np.zeros(len(u))
-                e[j] = _FD_STEP
-                hi = sub.predictions(jnp.asarray(u + e))[0][rows]
-                lo = sub.predictions(jnp.asarray(u - e))[0][rows]
-                cols.append((hi - lo) / (2 * _FD_STEP))
+            points = [
+                jnp.asarray(u + sign * _FD_STEP * e)
+                for e in np.eye(len(u))
+                for sign in (1.0, -1.0)
+            ]
+            # all 2 p solves of every block that holds a row at once: a few
+            # rows in one block would otherwise leave the other cores idle
+            out = [p[0][rows] for p in sub._map_points(_predictions, points, True)]
+            pairs = zip(out[::2], out[1::2], strict=True)
+            cols = [(hi - lo) / (2 * _FD_STEP) for hi, lo in pairs]
         finally:
             sub.close()
         sigma, mask = np.asarray(self.problem.sigma)[rows], self.mask[rows]
