@@ -14,6 +14,8 @@ import sys
 import time
 import warnings
 
+from ._cli_files import number
+
 _LAWS = ("jackson-green", "hertz", "hunt-crossley", "lankarani-nikravesh", "flores")
 
 
@@ -345,7 +347,7 @@ def main(argv=None) -> int:
     p = sub.add_parser(
         "demo", help="simulate a steel ball on a steel plate, all methods"
     )
-    p.add_argument("--velocity", type=float, default=1.0, help="impact speed [m/s]")
+    p.add_argument("--velocity", type=number, default=1.0, help="impact speed [m/s]")
     p.set_defaults(func=demo)
 
     s = sub.add_parser("simulate", help="one impact of a built-in scene, printed")
@@ -387,7 +389,7 @@ def main(argv=None) -> int:
     for flag, text, *default in numbers:
         if default:
             text += f" (normal_impact default {default[0]:g})"
-        s.add_argument(flag, type=float, default=None, help=text)
+        s.add_argument(flag, type=number, default=None, help=text)
     s.add_argument(
         "--law", choices=_LAWS, default=None, help="normal law (default jackson-green)"
     )

@@ -16,7 +16,8 @@ import csv
 import json
 import os
 
-from ._cli_files import open_new
+from ._cli_files import integer, number, open_new
+from ._data import parse_number
 
 _OUTPUT_FILES = ("fit.json", "residuals.csv", "fit.png", "loop.png")
 _HOLDOUT_FILES = ("holdout.csv", "holdout.png")
@@ -78,11 +79,14 @@ def register(sub) -> None:
         help="optimiser (default levenberg-marquardt)",
     )
     p.add_argument(
-        "--max-steps", type=int, default=100, help="most optimiser steps (default 100)"
+        "--max-steps",
+        type=integer,
+        default=100,
+        help="most optimiser steps (default 100)",
     )
     p.add_argument(
         "--holdout",
-        type=float,
+        type=number,
         default=None,
         metavar="FRACTION",
         help="hold out this fraction of the rows, fit on the rest, and compare "
@@ -95,19 +99,19 @@ def register(sub) -> None:
     )
     p.add_argument(
         "--samples",
-        type=int,
+        type=integer,
         default=None,
         help="draws per chain kept (with --posterior; default 1000)",
     )
     p.add_argument(
         "--warmup",
-        type=int,
+        type=integer,
         default=None,
         help="warm-up steps per chain (with --posterior; default 1000)",
     )
     p.add_argument(
         "--chains",
-        type=int,
+        type=integer,
         default=None,
         help="chains, run together (with --posterior; default 4)",
     )
@@ -124,7 +128,7 @@ def register(sub) -> None:
     )
     p.add_argument(
         "--seed",
-        type=int,
+        type=integer,
         default=None,
         help="draw of the held-out rows (--holdout) or of the chains "
         "(--posterior); default 0",
@@ -147,7 +151,7 @@ def _pairs(items, what):
 
 def _number(text, what):
     try:
-        return float(text)
+        return parse_number(text)
     except ValueError:
         raise ValueError(f"--{what}: {text!r} is not a number") from None
 

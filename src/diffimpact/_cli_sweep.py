@@ -37,7 +37,7 @@ import sys
 import time
 from pathlib import Path
 
-from ._cli_files import open_new
+from ._cli_files import integer, number, open_new
 from ._data import finite_number
 
 # (input name, command-line flag, CSV unit suffix, help text).  The order is
@@ -97,17 +97,20 @@ def register(subparsers) -> argparse.ArgumentParser:
     )
     p.add_argument(
         "--sample",
-        type=int,
+        type=integer,
         default=None,
         metavar="N",
         help="draw N random rows from the ranges instead of a grid",
     )
     p.add_argument(
-        "--seed", type=int, default=None, help="random seed for --sample (default 0)"
+        "--seed",
+        type=integer,
+        default=None,
+        help="random seed for --sample (default 0)",
     )
     p.add_argument(
         "--chunk-size",
-        type=int,
+        type=integer,
         default=None,
         help="impacts per chunk, split over the devices (bounds the memory; "
         "default 512 per CPU device, 65536 per accelerator)",
@@ -133,7 +136,7 @@ def parse_axis(spec: str, flag: str, sampling: bool):
         values = [finite_number(t, flag) for t in spec.split(",")]
         if sampling and len(values) > 1:
             raise ValueError(f"{flag}: with --sample give a range LO:HI[:log]")
-        return "values", np.asarray(values, dtype=float), False
+        return "values", np.asarray(values, dtype=number), False
     log = parts[-1] == "log"
     nums = parts[:-1] if parts[-1] in ("log", "lin") else parts
     if sampling:

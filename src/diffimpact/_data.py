@@ -24,6 +24,7 @@ import csv
 import dataclasses
 import math
 import os
+import re
 
 import numpy as np
 
@@ -434,10 +435,36 @@ def _read_lines(path: str) -> list[str]:
     return text.splitlines()
 
 
+# A plain decimal number, or inf / nan spelled out (reported as not finite
+# where a finite number is needed).  Python's float() also reads "1_000" and
+# non-ASCII digits: "0_290" in a cell would be read as 290, a silent wrong value.
+_NUMBER = re.compile(
+    r"\s*[+-]?(?:(?:[0-9]+\.?[0-9]*|\.[0-9]+)(?:[eE][+-]?[0-9]+)?|inf(?:inity)?|nan)\s*",
+    re.IGNORECASE,
+)
+
+
+def parse_number(text: str) -> float:
+    """``text`` as a float if it is written as a plain decimal number (digits,
+    one point, an exponent; ``inf`` or ``nan`` spelled out); ValueError
+    otherwise."""
+    if not isinstance(text, str) or not _NUMBER.fullmatch(text):
+        raise ValueError(f"{text!r} is not a number")
+    return float(text)
+
+
+def parse_integer(text: str) -> int:
+    """``text`` as an int if it is written as plain digits; ValueError
+    otherwise (``int`` also reads ``"1_0"`` as 10)."""
+    if not isinstance(text, str) or not re.fullmatch(r"\s*[+-]?[0-9]+\s*", text):
+        raise ValueError(f"{text!r} is not an integer")
+    return int(text)
+
+
 def finite_number(text: str, where: str) -> float:
     """``text`` as a finite float, or a `DataError` that starts with ``where``."""
     try:
-        x = float(text)
+        x = parse_number(text)
     except ValueError:
         raise DataError(f"{where}: {text!r} is not a number") from None
     if not math.isfinite(x):
