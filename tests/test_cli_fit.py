@@ -99,3 +99,69 @@ def test_fit_holdout_bad_arguments(tmp_path, capsys):
     assert "--seed draws the held-out rows" in capsys.readouterr().err
     assert main(base + ["--holdout", "1.5"]) == 2
     assert "--holdout must be a fraction in (0, 1)" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize(
+    "args, message",
+    [
+        # float() would read '0_5' as 5 and the seed as a number numpy's keys
+        # cannot hold: refused before any solve, naming the flag
+        (["--holdout", "0_5"], "argument --holdout: invalid number value: '0_5'"),
+        (["--posterior", "--seed", str(2**64)], "--seed must be an integer in [0,"),
+        (["--set", "radius=1_0e-3"], "--set: '1_0e-3' is not a number"),
+    ],
+)
+def test_fit_numbers_are_plain_decimals(tmp_path, capsys, args, message):
+    argv = ["fit", str(_data(tmp_path)), "--free", "yield_strength"]
+    try:
+        code = main(argv + ["--out", str(tmp_path / "o"), *args])
+    except SystemExit as exit_:  # argparse's own usage error
+        code = exit_.code
+    assert code == 2
+    assert message in capsys.readouterr().err
+    assert not (tmp_path / "o").exists()
+
+
+def test_fit_refuses_an_unwritable_folder_and_too_few_measurements(
+    tmp_path, capsys, monkeypatch
+):
+    """Both before any solve: a folder where no file can be written (made so
+    here by a failing write probe: the tests may run as root), and fewer
+    measurements than free parameters."""
+    import tempfile
+
+    data, out = _data(tmp_path), tmp_path / "o"
+    out.mkdir()
+
+    def refuse(*a, **k):
+        raise PermissionError(13, "Permission denied")
+
+    with monkeypatch.context() as m:
+        m.setattr(tempfile, "TemporaryFile", refuse)
+        argv = ["fit", str(data), "--free", "yield_strength", "--out", str(out)]
+        assert main(argv) == 2
+    assert "no file can be written there (Permission denied)" in (
+        capsys.readouterr().err
+    )
+    one = tmp_path / "one.csv"
+    one.write_text("scene,impact_velocity_m_s,cor_normal\nnormal_impact,1.0,0.49\n")
+    argv = ["fit", str(one), "--free", "yield_strength,ep_exponent"]
+    assert main(argv + ["--out", str(tmp_path / "p")]) == 2
+    assert "1 measurement(s) for 2 free parameters" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize("seed", [0, 1])
+def test_a_bad_row_stops_the_holdout_whichever_side_it_falls(tmp_path, capsys, seed):
+    """Row 1 (line 2) is outside the contact model: with seed 0 it is fitted,
+    with seed 1 held out; either way the run stops naming line 2."""
+    p = tmp_path / "big.csv"
+    p.write_text(
+        "scene,drop_height_m,angle_deg,cor_normal\nsphere_on_incline,1e6,30,0.5\n"
+        "sphere_on_incline,0.29,30,0.5\nsphere_on_incline,0.2,40,0.5\n"
+        "sphere_on_incline,0.25,35,0.5\n"
+    )
+    argv = ["fit", str(p), "--free", "yield_strength", "--holdout", "0.25"]
+    assert main(argv + ["--seed", str(seed), "--out", str(tmp_path / "o")]) == 2
+    err = capsys.readouterr().err
+    assert "line 2: outside model" in err
+    assert ("held-out" in err) == (seed == 1)

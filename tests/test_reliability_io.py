@@ -102,6 +102,11 @@ def test_bom_loads(tmp_path):
             "line 4, column 'angle_deg': 'abc' is not a number",
         ),
         (
+            "underscore.csv",  # float() reads '0_290' as 290: a silent wrong value
+            b"scene,drop_height_m,angle_deg,cor_normal\nsphere_on_incline,0_290,30,0.7\n",
+            "line 2, column 'drop_height_m': '0_290' is not a number",
+        ),
+        (
             "empty_output.csv",
             b"scene,drop_height_m,angle_deg,cor_normal,contact_time_us\n"
             b"sphere_on_incline,0.3,30,0.7,\n",

@@ -28,3 +28,27 @@ def integer(text: str) -> int:
     from ._data import parse_integer
 
     return parse_integer(text)
+
+
+def writable_folder(out) -> bool:
+    """Make the output folder ``out`` if needed and check that a file can be
+    written in it, before any long computation; ValueError naming ``--out``
+    otherwise.  Returns whether the folder was made here."""
+    import os
+    import tempfile
+
+    created = not os.path.isdir(out)
+    try:
+        os.makedirs(out, exist_ok=True)
+    except OSError as err:
+        raise ValueError(f"--out {out}: cannot be created ({err.strerror})") from None
+    try:
+        with tempfile.TemporaryFile(dir=out):
+            pass
+    except OSError as err:
+        if created:
+            os.rmdir(out)
+        raise ValueError(
+            f"--out {out}: no file can be written there ({err.strerror})"
+        ) from None
+    return created

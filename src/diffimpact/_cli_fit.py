@@ -16,7 +16,7 @@ import csv
 import json
 import os
 
-from ._cli_files import integer, number, open_new
+from ._cli_files import integer, number, open_new, writable_folder
 from ._data import parse_number
 
 _OUTPUT_FILES = ("fit.json", "residuals.csv", "fit.png", "loop.png")
@@ -149,6 +149,10 @@ def _pairs(items, what):
     return out
 
 
+# The chains' random keys take a seed of at most 32 bits.
+_SEED_MAX = 2**32 - 1
+
+
 def _number(text, what):
     try:
         return parse_number(text)
@@ -180,11 +184,8 @@ def run(args) -> int:
             f"{out}: would overwrite {', '.join(existing)}; pass --force or choose "
             "another --out"
         )
-    created = not os.path.isdir(out)
-    try:  # the folder exists and can be written, before minutes of fitting
-        os.makedirs(out, exist_ok=True)
-    except OSError as err:
-        raise ValueError(f"--out {out}: cannot be created ({err.strerror})") from None
+    # the folder exists and can be written, before minutes of fitting
+    created = writable_folder(out)
     try:
         return _fit_and_write(args, out)
     except BaseException:
@@ -303,8 +304,10 @@ def _check_posterior_options(args) -> None:
         v = getattr(args, name)
         if v is not None and v < low:
             raise ValueError(f"--{name} must be an integer >= {low}, got {v}")
-    if args.seed is not None and args.seed < 0:
-        raise ValueError(f"--seed must be an integer >= 0, got {args.seed}")
+    if args.seed is not None and not 0 <= args.seed <= _SEED_MAX:
+        raise ValueError(
+            f"--seed must be an integer in [0, {_SEED_MAX}], got {args.seed}"
+        )
     from diffimpact._priors import parse_prior
 
     free = {f.strip() for f in args.free.split(",") if f.strip()}

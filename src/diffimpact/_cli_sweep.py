@@ -37,7 +37,7 @@ import sys
 import time
 from pathlib import Path
 
-from ._cli_files import integer, number, open_new
+from ._cli_files import integer, open_new, writable_folder
 from ._data import finite_number
 
 # (input name, command-line flag, CSV unit suffix, help text).  The order is
@@ -136,7 +136,7 @@ def parse_axis(spec: str, flag: str, sampling: bool):
         values = [finite_number(t, flag) for t in spec.split(",")]
         if sampling and len(values) > 1:
             raise ValueError(f"{flag}: with --sample give a range LO:HI[:log]")
-        return "values", np.asarray(values, dtype=number), False
+        return "values", np.asarray(values, dtype=float), False
     log = parts[-1] == "log"
     nums = parts[:-1] if parts[-1] in ("log", "lin") else parts
     if sampling:
@@ -344,6 +344,7 @@ def _run(args) -> int:
         for path in paths:
             if path.exists():
                 raise ValueError(f"{path} already exists; pass --force to overwrite it")
+    writable_folder(out_dir)
 
     import functools
 

@@ -17,8 +17,9 @@ import numpy as np
 
 from ._data import ExperimentData, load_experiments
 from ._fit import FitResult, fit
-from ._observables import Experiment, predict
+from ._observables import Experiment, predict, row_label
 from ._residuals import _chunk_size, map_rows
+from ._result import RESULTS, result_name
 
 
 @dataclasses.dataclass(frozen=True)
@@ -91,6 +92,31 @@ def _rows(data: ExperimentData, index: np.ndarray) -> ExperimentData:
     )
 
 
+def _check_held_out(experiment, test_data: ExperimentData, name: str) -> None:
+    """A ValueError naming the held-out rows that ``experiment`` (at its
+    start values) cannot predict, with the first reason."""
+
+    def code(row):
+        return predict(experiment, row, throw=False)["result"]._value
+
+    chunk = _chunk_size("auto", test_data.n)
+    codes = np.asarray(jax.jit(lambda x: map_rows(code, x, chunk))(test_data.inputs))
+    ok = int(RESULTS.successful._value)
+    bad = np.nonzero(codes != ok)[0]
+    if bad.size == 0:
+        return
+    listed = "; ".join(
+        f"{row_label(test_data.lines, i)}: {result_name(codes[i]).replace('_', ' ')}"
+        for i in bad[:10]
+    )
+    first = RESULTS[getattr(RESULTS, result_name(codes[bad[0]]))]
+    raise ValueError(
+        f"{test_data.path}: model {name!r} cannot predict {bad.size} held-out "
+        f"row(s) at its start values: {listed}. First reason: "
+        f"{first.removeprefix('diffimpact: ')}"
+    )
+
+
 def cross_validate(
     data,
     models: dict[str, Experiment],
@@ -145,6 +171,11 @@ def cross_validate(
         shapes = jax.eval_shape(lambda: predict(e, first))
         return [q for q in measured_q if q in shapes]
 
+    # Every row, held-out ones included, must be predictable at the start
+    # values, as `fit` demands of the rows it fits: whether a row outside the
+    # model stops the run must not depend on the draw.
+    for name, e in models.items():
+        _check_held_out(e, test_data, name)
     fits = {
         name: fit(
             train_data,
@@ -177,7 +208,11 @@ def cross_validate(
     rms, failed = {}, {}
     for name, p in predicted.items():
         err = p - measured
-        rms[name] = np.sqrt(np.nanmean(err**2, axis=0))
+        # (a quantity no held-out row could be predicted for has no RMS: NaN,
+        # counted in `failed`, without numpy's empty-slice warning)
+        seen = np.sum(np.isfinite(err), axis=0)
+        total = np.nansum(err**2, axis=0)
+        rms[name] = np.where(seen > 0, np.sqrt(total / np.maximum(seen, 1)), np.nan)
         failed[name] = int(np.sum(np.any(np.isnan(p), axis=1)))
     lines = data.lines if data.lines is not None else np.arange(1, n + 1)
     return CrossValidation(

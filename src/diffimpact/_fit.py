@@ -267,6 +267,15 @@ def fit(
         data, experiment, free, start, bounds, outputs, chunk_size
     )
     free = problem.names
+    measurements = int(problem.mask.sum())
+    if measurements < len(free):
+        # No unique least-squares answer: the estimate would be wherever the
+        # iterations stop (a posterior with priors can still be sampled).
+        raise ValueError(
+            f"{measurements} measurement(s) for {len(free)} free parameters "
+            f"{list(free)}: fitting needs at least as many measurements as "
+            "parameters; fix some parameters or add rows"
+        )
     # Least squares needs the Jacobian of many residuals w.r.t. a few
     # parameters: forward mode (one JVP per parameter) is the cheap way, and
     # diffrax differentiates a solve in forward mode only with ForwardMode.

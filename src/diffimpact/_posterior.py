@@ -398,6 +398,8 @@ def _check_counts(num_samples, num_warmup, num_chains, seed, target, depth):
     integer("num_warmup", num_warmup, 20)
     integer("num_chains", num_chains, 1)
     integer("seed", seed, 0)
+    if seed > 2**32 - 1:  # the chains' random keys take 32 bits
+        raise ValueError(f"`seed` must be an integer <= {2**32 - 1}, got {seed!r}")
     integer("max_tree_depth", depth, 1)
     if not 0.0 < float(target) < 1.0:
         raise ValueError(f"`target_acceptance` must lie in (0, 1), got {target!r}")
