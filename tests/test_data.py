@@ -1,6 +1,7 @@
 """Experiment CSV schema and loader (issue 5): units, provenance, clear errors."""
 
 import math
+import re
 
 import numpy as np
 import pytest
@@ -41,6 +42,25 @@ def test_write_then_load_round_trip_and_no_overwrite(tmp_path):
     np.testing.assert_array_equal(d.outputs["cor_normal"], [0.9, 0.8])
     with pytest.raises(FileExistsError, match="exists"):
         di.write_experiments(p, cols)
+
+
+@pytest.mark.parametrize(
+    "cols, match",
+    [
+        ({}, "`columns` is empty"),
+        (
+            {"impact_velocity_m_s": [0.5, 1.0, 2.0], "cor_normal": [0.9, 0.8]},
+            "differ in length: {'impact_velocity_m_s': 3, 'cor_normal': 2}",
+        ),
+        ({"impact_velocity_m_s": [[0.5, 1.0]]}, "must be 1-D"),
+    ],
+)
+def test_write_refuses_columns_that_do_not_make_rows(tmp_path, cols, match):
+    """Checked before the file exists: no half-written file, no lost tail."""
+    p = tmp_path / "w.csv"
+    with pytest.raises(ValueError, match=re.escape(match)):
+        di.write_experiments(p, cols)
+    assert not p.exists()
 
 
 @pytest.mark.parametrize(

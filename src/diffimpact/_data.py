@@ -505,10 +505,21 @@ def write_experiments(
     path = os.fspath(path)
     if os.path.exists(path):
         raise FileExistsError(f"{path} exists; remove it first or choose another name")
+    if not columns:
+        raise ValueError(f"{path}: `columns` is empty; give at least one column")
     for h in columns:
         parse_column(h, f"{path}: ")
-    n = len(next(iter(columns.values())))
-    with open(path, "w", newline="", encoding="utf-8") as fh:
+    # Every column checked before the file exists: a shorter column would
+    # fail half-way through the rows, a longer one lose its tail silently.
+    lengths = {h: np.shape(np.asarray(v)) for h, v in columns.items()}
+    bad = {h: s for h, s in lengths.items() if len(s) != 1}
+    if bad:
+        raise ValueError(f"{path}: every column must be 1-D, got shapes {bad}")
+    n = next(iter(lengths.values()))[0]
+    if any(s[0] != n for s in lengths.values()):
+        rows = {h: s[0] for h, s in lengths.items()}
+        raise ValueError(f"{path}: the columns differ in length: {rows}")
+    with open(path, "x", newline="", encoding="utf-8") as fh:
         for line in provenance.splitlines():
             fh.write(f"# {line}\n")
         w = csv.writer(fh)
