@@ -263,6 +263,36 @@ def test_a_triangle_on_its_corner_does_not_spin():
     assert abs(float(spin)) > 1.0
 
 
+@pytest.mark.parametrize(
+    "shape",
+    [
+        S.Capsule(0.05, 0.005),
+        S.RoundedPolygon(
+            [(-0.01, -0.01), (0.01, -0.01), (0.01, 0.01), (-0.01, 0.01)], 1e-3
+        ),
+    ],
+    ids=["capsule", "square"],
+)
+def test_a_flat_side_facing_the_flat_is_named(shape):
+    """Lying flat, two points touch at once: the impact was solved at one
+    of them, which flipped with the angle's last bits (the spin after changed
+    sign between 1e-12 and -1e-12 rad).  Refused, eagerly and under jit; at
+    1e-3 rad one end touches first, and the impact is solved."""
+
+    def body(angle):
+        return S.PlanarBody(
+            0.05, 3e-6, shape, BAR, FLAT, angle=angle, velocity_x=0.0, velocity_y=-1.0
+        )
+
+    for angle in (0.0, 1e-12, -1e-12):
+        with pytest.raises(ValueError, match="a flat side of the shape faces"):
+            body(angle)
+    after = jax.jit(lambda a: di.rigid_impact(body(a), 0.0, 1.0, "energetic"))
+    with pytest.raises(Exception, match="a flat side of the shape faces"):
+        after(0.0)
+    assert np.isfinite(float(after(1e-3)["angular_velocity_after"]))
+
+
 def test_a_polygon_that_is_not_convex_is_named():
     dent = [(0.0, 0.0), (0.1, 0.0), (0.05, 0.01), (0.1, 0.1), (0.0, 0.1)]
     with pytest.raises(ValueError, match="strictly convex"):

@@ -140,6 +140,18 @@ class PlanarBody(AbstractPlanarScene):
     def _state_checks(self):
         if self.height is None:
             return [
+                # A flat side facing the flat touches along a line, or at two
+                # points at once: the first contact is not one point, and which
+                # of the two the model picks flips with the angle's last bits.
+                check(
+                    self.angle,
+                    self.shape.margin(down(self.angle))
+                    > 1e-9 * self.largest_lever(),
+                    "`PlanarBody.angle`: a flat side of the shape faces the flat, "
+                    "so two points touch at once (a line contact, outside this "
+                    "point-contact model); give the angle at which one end or "
+                    "corner touches first",
+                ),
                 check(
                     self.velocity_y,
                     jnp.isfinite(self.velocity_y) & (self._approach_speed() > 0),

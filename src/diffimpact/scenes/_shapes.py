@@ -55,6 +55,13 @@ class AbstractShape(AbstractValidated):
         """The largest distance from the point ``c`` to a point of the shape (it
         bounds the moment of inertia about ``c``: ``I <= m r_max^2``)."""
 
+    def margin(self, u) -> Array:
+        """How much farther along ``u`` the support point lies than any other
+        point that could touch first (the other end cap, the next corner):
+        zero where a flat side faces ``u`` and two points touch at once;
+        infinite for a smooth, strictly convex shape (the default)."""
+        return jnp.asarray(jnp.inf, dtype=jnp.result_type(u))
+
     def contains(self, c) -> Array:
         """Whether the point ``c`` lies inside the shape (a centre of mass must)."""
         # Convex: inside iff c . u <= h(u) for every u; 64 directions resolve
@@ -148,6 +155,9 @@ class Capsule(AbstractShape):
     def farthest(self, c):
         return jnp.hypot(self.half_length + jnp.abs(c[0]), c[1]) + self.radius
 
+    def margin(self, u):
+        return 2.0 * self.half_length * jnp.abs(u[0])  # the other end cap
+
 
 def _vertex_pairs(vertices):
     """``[(x, y), ...]`` (or a ``(k, 2)`` array) as a tuple of scalar pairs: one
@@ -199,3 +209,8 @@ class RoundedPolygon(AbstractShape):
 
     def farthest(self, c):
         return jnp.max(jnp.linalg.norm(self._points() - c, axis=1)) + self.radius
+
+    def margin(self, u):
+        # the farthest corner along u against the next one
+        top = jnp.sort(self._points() @ u)
+        return top[-1] - top[-2]
