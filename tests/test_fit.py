@@ -171,6 +171,14 @@ def test_a_column_set_parameter_cannot_be_fitted(tmp_path):
             {"free": ["yield_strength"], "outputs": ["angular_velocity"]},
             "no measurements",
         ),
+        ({"free": ["yield_strength"], "outputs": []}, "`outputs` is empty"),
+        ({"free": ["yield_strength"], "max_steps": 0}, "`max_steps` must be"),
+        ({"free": ["yield_strength"], "rtol": -1.0}, "`rtol` must be a finite"),
+        ({"free": ["yield_strength"], "rtol": 0.0, "atol": 0.0}, "both 0"),
+        (
+            {"free": ["yield_strength"], "bounds": {"yield_strength": 1.0}},
+            "must be a pair",
+        ),
     ],
 )
 def test_bad_fit_requests(tmp_path, kwargs, match):

@@ -260,6 +260,7 @@ def fit(
         )
     if solver not in _SOLVERS:
         raise ValueError(f"`solver` must be one of {_SOLVERS}, got {solver!r}")
+    _check_options(max_steps, rtol, atol, learning_rate)
     gauss_newton = solver in ("levenberg-marquardt", "gauss-newton")
     _check_subsample(subsample)
     auto_chunks = isinstance(chunk_size, str) and chunk_size == "auto"
@@ -332,6 +333,25 @@ _WARM_PER_PARAMETER, _WARM_MIN, _WARM_FACTOR = 64, 256, 4
 # far below the spread of estimates from a subsample, far above the rounding
 # of the final iterations.
 _WARM_TOL = 1e-4
+
+
+def _check_options(max_steps, rtol, atol, learning_rate) -> None:
+    """The iteration budget and tolerances, before anything is solved."""
+    if isinstance(max_steps, bool) or not isinstance(max_steps, int | np.integer):
+        raise TypeError(f"`max_steps` must be an integer >= 1, got {max_steps!r}")
+    if max_steps < 1:
+        raise ValueError(f"`max_steps` must be an integer >= 1, got {max_steps!r}")
+    for name, value, low in (("rtol", rtol, 0.0), ("atol", atol, 0.0)):
+        if not (
+            isinstance(value, int | float) and math.isfinite(value) and value >= low
+        ):
+            raise ValueError(f"`{name}` must be a finite number >= 0, got {value!r}")
+    if rtol == 0.0 and atol == 0.0:
+        raise ValueError(
+            "`rtol` and `atol` are both 0: no step would ever be small enough"
+        )
+    if not (isinstance(learning_rate, int | float) and learning_rate > 0):
+        raise ValueError(f"`learning_rate` must be a number > 0, got {learning_rate!r}")
 
 
 def _check_subsample(subsample) -> None:
@@ -619,6 +639,11 @@ def _targets(data: ExperimentData, outputs, experiment):
         quantities = tuple(available)
     else:
         quantities = tuple([outputs] if isinstance(outputs, str) else outputs)
+        if not quantities:
+            raise ValueError(
+                f"`outputs` is empty: name at least one measured quantity "
+                f"(measured in {data.path}: {available})"
+            )
         missing = [q for q in quantities if q not in available]
         if missing:
             raise ValueError(

@@ -85,7 +85,12 @@ class Transform(eqx.Module):
 def make_transform(name: str, start: float, bounds) -> Transform:
     """A transform for parameter ``name`` starting at ``start`` within ``bounds``
     (default ``(0, inf)``); raise naming the parameter if the start is outside."""
-    lo, hi = (0.0, math.inf) if bounds is None else (float(b) for b in bounds)
+    try:
+        lo, hi = (0.0, math.inf) if bounds is None else (float(b) for b in bounds)
+    except (TypeError, ValueError):
+        raise ValueError(
+            f"bounds of {name!r} must be a pair (lower, upper), got {bounds!r}"
+        ) from None
     if not lo < hi:
         raise ValueError(f"bounds of {name!r} must satisfy lower < upper, got {bounds}")
     if not (math.isfinite(start) and lo < start < hi):

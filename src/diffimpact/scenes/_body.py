@@ -145,8 +145,7 @@ class PlanarBody(AbstractPlanarScene):
                 # of the two the model picks flips with the angle's last bits.
                 check(
                     self.angle,
-                    self.shape.margin(down(self.angle))
-                    > 1e-9 * self.largest_lever(),
+                    self.shape.margin(down(self.angle)) > 1e-9 * self.largest_lever(),
                     "`PlanarBody.angle`: a flat side of the shape faces the flat, "
                     "so two points touch at once (a line contact, outside this "
                     "point-contact model); give the angle at which one end or "
@@ -158,7 +157,7 @@ class PlanarBody(AbstractPlanarScene):
                     "`PlanarBody.velocity_y` and `angular_velocity`: the contact "
                     "point must approach the flat (d_dot = -velocity_y - r_x "
                     "angular_velocity > 0 at first contact)",
-                )
+                ),
             ]
         falls = (self.velocity_y < 0) | (self.gravity * jnp.cos(self.incline) > 0)
         gap = self.gap(0.0)
