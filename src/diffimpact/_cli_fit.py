@@ -392,6 +392,7 @@ def _cross_validate(args, data, experiment, free, own_options, out):
         model_options={args.law: own_options},
         solver=args.solver,
         max_steps=args.max_steps,
+        progress=not args.no_progress,  # each model's fit shows its bar
     )
     print("held-out RMS error (SI units):")
     print(cv.table())
