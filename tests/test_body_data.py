@@ -98,6 +98,32 @@ def test_compliant_data_is_fitted_and_beats_the_rigid_laws(tmp_path):
 
 
 @pytest.mark.parametrize(
+    "models, free, options, match",
+    [
+        (
+            {"a": "rigid"},
+            ["mu"],
+            None,
+            r"`models\['a'\]` must be a diffimpact.Experiment",
+        ),
+        (None, {"b": ["mu"]}, None, r"`free` names models that are not in"),
+        (None, {}, None, r"`free` gives no parameters for \['a'\]"),
+        (None, ["mu"], {"typo": {}}, r"`model_options` names models that are not"),
+        (None, ["mu"], None, r"holdout=0.9 of 2 rows leaves no row"),
+    ],
+)
+def test_cross_validation_requests_are_named(tmp_path, models, free, options, match):
+    """Refused before any fit: a model that is not an Experiment, names in
+    `free` or `model_options` that match no model (a typo was ignored), and
+    a holdout that leaves no row on one side."""
+    truth = di.Experiment(BODY, di.RigidContact(0.5, "energetic"), di.Friction(0.25))
+    path = _write(tmp_path / "r.csv", truth, _states(2, 1))
+    models = models or {"a": truth}
+    with pytest.raises((ValueError, TypeError), match=match):
+        di.cross_validate(path, models, free, holdout=0.9, model_options=options)
+
+
+@pytest.mark.parametrize(
     ("n", "away", "line"),
     [
         (3, [1], 3),

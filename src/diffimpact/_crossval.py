@@ -146,6 +146,25 @@ def cross_validate(
         raise ValueError(f"holdout={holdout!r}: expected a fraction in (0, 1)")
     if not models:
         raise ValueError("`models` must name at least one Experiment")
+    free_of = free if isinstance(free, dict) else dict.fromkeys(models, free)
+    options = model_options or {}
+    for name, e in models.items():
+        if not isinstance(e, Experiment):
+            raise TypeError(
+                f"`models[{name!r}]` must be a diffimpact.Experiment, got "
+                f"{type(e).__name__}"
+            )
+    for what, given in (("free", free_of), ("model_options", options)):
+        if isinstance(given, dict) and set(given) - set(models):
+            raise ValueError(
+                f"`{what}` names models that are not in `models`: "
+                f"{sorted(set(given) - set(models))} (models: {list(models)})"
+            )
+    if set(models) - set(free_of):
+        raise ValueError(
+            f"`free` gives no parameters for {sorted(set(models) - set(free_of))}: "
+            "give a list for every model, or one list for all"
+        )
     if not isinstance(data, ExperimentData):
         data = load_experiments(data)
     n = data.n
@@ -157,8 +176,6 @@ def cross_validate(
         )
     order = np.random.default_rng(seed).permutation(n)
     test, train = np.sort(order[:n_test]), np.sort(order[n_test:])
-    free_of = free if isinstance(free, dict) else dict.fromkeys(models, free)
-    options = model_options or {}
     train_data, test_data = _rows(data, train), _rows(data, test)
     measured_q = [q for q, v in data.outputs.items() if np.any(np.isfinite(v))]
     first = {q: v[0] for q, v in data.inputs.items()}
