@@ -189,3 +189,8 @@ def test_bad_input_is_named():
         di.rigid_impact(_rod(-0.5, 0.3), -0.2, 0.8)
     with pytest.raises(ValueError, match="cor"):
         di.rigid_impact(_rod(-0.5, 0.3), 0.2, 1.5)
+    normal = di.Experiment.default("normal_impact").scene
+    with pytest.raises(TypeError, match="need a planar scene.*got NormalImpact"):
+        di.rigid_impact(normal, 0.2, 0.8)
+    with pytest.raises(TypeError, match="need a planar scene"):
+        di.predict(di.Experiment(normal, di.RigidContact(0.5)), {})

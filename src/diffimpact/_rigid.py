@@ -173,6 +173,12 @@ def rigid_impact(
         raise ValueError(
             f"restitution={restitution!r}: expected one of {RESTITUTION_LAWS}"
         )
+    if not isinstance(scene, AbstractPlanarScene):
+        raise TypeError(
+            f"rigid impact laws need a planar scene (a body with a contact point "
+            f"and its lever), got {type(scene).__name__}; a normal impact's rigid "
+            "answer is its COR alone"
+        )
     mu, cor = as_float(mu), as_float(cor)
     require_scalars(scene, "scene")
     limits = [
