@@ -262,3 +262,16 @@ def test_every_registered_scene_predicts_finite_outputs(name):
     out = di.predict(exp)
     assert all(np.isfinite(float(v)) for v in out.values()), out
     assert 0.0 < float(out["cor_normal"]) <= 1.0 and float(out["contact_time"]) > 0
+
+
+def test_a_parameter_the_data_barely_move_is_named():
+    """The ball-prism impacts with an elastic (Hertz) contact stick from
+    first touch, and a stuck ball leaves rolling whatever mu (tangential COR
+    5/7): one free parameter whose standard error is 2e7 times its value
+    (measured).  Its Jacobian is full rank, so only the size of the error
+    can say so."""
+    exp = di.Experiment.default("sphere_on_incline")
+    exp = eqx.tree_at(lambda e: e.law, exp, di.Hertz())
+    with pytest.warns(di.IdentifiabilityWarning, match="barely determine mu"):
+        result = di.fit(DATA / "ball_prism.csv", exp, ["mu"])
+    assert result.std_errors[0] > 1e6 * result.values[0]

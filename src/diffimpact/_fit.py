@@ -64,6 +64,8 @@ _RANK_TOL = 1e-6
 # Where a direction is undetermined, its variance is reported from this floor
 # (so the errors come out huge and the correlation +-1, not infinite or NaN).
 _SV_FLOOR = 1e-9
+# A standard error this many times a parameter's value: not determined.
+_LOOSE = 10.0
 # Default bounds of parameters whose domain is not (0, inf), by field name.
 _DOMAINS = {
     "poisson_ratio": (-1.0, 0.5),
@@ -814,6 +816,16 @@ def _result(
     for i in np.nonzero(involved)[0]:
         se[i] = math.inf
         cov[i, :] = cov[:, i] = math.inf
+    # One parameter on which the predictions barely depend has a full-rank
+    # Jacobian (the test above is relative to the largest singular value,
+    # and with one parameter that is its own), but an error far larger than
+    # itself: the data do not determine even its order of magnitude.
+    for i in np.nonzero(np.isfinite(se) & (se > _LOOSE * np.abs(x)))[0]:
+        notes.append(
+            f"the data barely determine {names[i]}: its standard error is "
+            f"{se[i] / abs(x[i]):.1e} times its value; fix it or add "
+            "measurements sensitive to it"
+        )
     d = np.sqrt(np.diag(cov_u))
     corr = cov_u / np.outer(d, d)
     for i in range(p):
@@ -835,7 +847,7 @@ def _result(
             "start closer"
         )
     for msg in notes:
-        if "cannot determine" in msg or "correlated" in msg:
+        if "cannot determine" in msg or "correlated" in msg or "barely" in msg:
             warnings.warn(msg, IdentifiabilityWarning, stacklevel=3)
     return FitResult(
         names=names,
