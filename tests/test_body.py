@@ -297,6 +297,16 @@ def test_a_polygon_that_is_not_convex_is_named():
     dent = [(0.0, 0.0), (0.1, 0.0), (0.05, 0.01), (0.1, 0.1), (0.0, 0.1)]
     with pytest.raises(ValueError, match="strictly convex"):
         S.RoundedPolygon(dent, 0.002)
+    # a pentagram turns the same way at every corner, but goes round twice
+    pentagon = [
+        (math.cos(0.4 * math.pi * k), math.sin(0.4 * math.pi * k)) for k in range(5)
+    ]
+    S.RoundedPolygon(pentagon[::-1], 0.002)
+    with pytest.raises(ValueError, match="strictly convex"):
+        S.RoundedPolygon([pentagon[k] for k in (0, 2, 4, 1, 3)], 0.002)
+    for bad in ([], [(0.0, 0.0, 0.0)] * 3, "abc"):
+        with pytest.raises(ValueError, match="at least three points"):
+            S.RoundedPolygon(bad, 0.002)
     with pytest.raises(ValueError, match="RoundedPolygon.radius"):
         S.RoundedPolygon([(0.0, 0.0), (0.1, 0.0), (0.0, 0.1)], 0.0)
 

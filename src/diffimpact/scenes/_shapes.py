@@ -161,8 +161,19 @@ class Capsule(AbstractShape):
 
 def _vertex_pairs(vertices):
     """``[(x, y), ...]`` (or a ``(k, 2)`` array) as a tuple of scalar pairs: one
-    pytree leaf per coordinate, so that a polygon vmaps like any scene."""
-    return tuple((as_float(x), as_float(y)) for x, y in vertices)
+    pytree leaf per coordinate, so that a polygon vmaps like any scene.  The
+    structure (how many points, two coordinates each) is checked here, as
+    structure: the values by `RoundedPolygon._checks`."""
+    try:
+        pairs = [tuple(v) for v in vertices]
+    except TypeError:
+        pairs = None
+    if pairs is None or len(pairs) < 3 or any(len(v) != 2 for v in pairs):
+        raise ValueError(
+            "`RoundedPolygon.vertices` must be at least three points (x, y) [m], "
+            f"got {vertices!r}"
+        )
+    return tuple((as_float(x), as_float(y)) for x, y in pairs)
 
 
 class RoundedPolygon(AbstractShape):
@@ -183,7 +194,14 @@ class RoundedPolygon(AbstractShape):
         edges = jnp.roll(pts, -1, axis=0) - pts
         ahead = jnp.roll(edges, -1, axis=0)
         turns = edges[:, 0] * ahead[:, 1] - edges[:, 1] * ahead[:, 0]
-        convex = jnp.all(turns > 0) | jnp.all(turns < 0)
+        # Every turn the same way, and once round in all: a star (a pentagon's
+        # corners taken every other one) turns the same way at each corner
+        # but goes round twice.
+        dots = jnp.sum(edges * ahead, axis=1)
+        winding = jnp.abs(jnp.sum(jnp.arctan2(turns, dots))) / (2 * jnp.pi)
+        convex = (jnp.all(turns > 0) | jnp.all(turns < 0)) & (
+            jnp.abs(winding - 1.0) < 1e-6
+        )
         return [
             check(
                 pts,
