@@ -1,6 +1,12 @@
-"""Output files of the command line: never replace a user's file unasked."""
+"""The command line's files and flag values: never replace a user's file unasked,
+never read a number that is not written as one."""
 
 from __future__ import annotations
+
+import os
+import tempfile
+
+from ._data import parse_integer, parse_number
 
 
 def open_new(path, force: bool, binary: bool = False):
@@ -18,15 +24,11 @@ def open_new(path, force: bool, binary: bool = False):
 def number(text: str) -> float:
     """argparse type of a number flag: plain decimal digits only (``float``
     would read ``0_5`` as 5); argparse names the flag in its message."""
-    from ._data import parse_number
-
     return parse_number(text)
 
 
 def integer(text: str) -> int:
     """argparse type of an integer flag (``int`` would read ``1_0`` as 10)."""
-    from ._data import parse_integer
-
     return parse_integer(text)
 
 
@@ -34,9 +36,6 @@ def writable_folder(out) -> bool:
     """Make the output folder ``out`` if needed and check that a file can be
     written in it, before any long computation; ValueError naming ``--out``
     otherwise.  Returns whether the folder was made here."""
-    import os
-    import tempfile
-
     created = not os.path.isdir(out)
     try:
         os.makedirs(out, exist_ok=True)
