@@ -42,8 +42,7 @@ def writable_folder(out) -> bool:
     except OSError as err:
         raise ValueError(f"--out {out}: cannot be created ({err.strerror})") from None
     try:
-        with tempfile.TemporaryFile(dir=out):
-            pass
+        tempfile.TemporaryFile(dir=out).close()  # made, then removed on close
     except OSError as err:
         if created:
             os.rmdir(out)

@@ -16,10 +16,10 @@ import jax
 import numpy as np
 
 from ._data import ExperimentData, load_experiments
-from ._fit import FitResult, fit
-from ._observables import Experiment, predict, row_label
+from ._fit import FitResult, failed_rows, fit
+from ._observables import Experiment, predict
 from ._residuals import _chunk_size, map_rows
-from ._result import RESULTS, result_name
+from ._result import RESULTS
 
 
 @dataclasses.dataclass(frozen=True)
@@ -105,15 +105,9 @@ def _check_held_out(experiment, test_data: ExperimentData, name: str) -> None:
     bad = np.nonzero(codes != ok)[0]
     if bad.size == 0:
         return
-    listed = "; ".join(
-        f"{row_label(test_data.lines, i)}: {result_name(codes[i]).replace('_', ' ')}"
-        for i in bad[:10]
-    )
-    first = RESULTS[getattr(RESULTS, result_name(codes[bad[0]]))]
     raise ValueError(
         f"{test_data.path}: model {name!r} cannot predict {bad.size} held-out "
-        f"row(s) at its start values: {listed}. First reason: "
-        f"{first.removeprefix('diffimpact: ')}"
+        f"row(s) at its start values: {failed_rows(codes, bad, test_data.lines)}"
     )
 
 

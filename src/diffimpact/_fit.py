@@ -614,17 +614,22 @@ def _check_predictions(problem: _Problem, u, data, when: str, computed=None):
         f"{n} = {float(x):.6g}"
         for n, x in zip(problem.names, problem.parameters(u), strict=True)
     )
+    raise ValueError(
+        f"{data.path}: the prediction failed {when} ({values}) for "
+        f"{failed.size} of {codes.size} rows: {failed_rows(codes, failed, data.lines)}"
+    )
+
+
+def failed_rows(codes, failed, lines) -> str:
+    """The rows `failed` (indices into `codes`, the rows' result codes) by file
+    line with their reasons, at most ten, then the first reason in full."""
     listed = "; ".join(
-        f"{row_label(data.lines, i)}: {result_name(codes[i]).replace('_', ' ')}"
+        f"{row_label(lines, i)}: {result_name(codes[i]).replace('_', ' ')}"
         for i in failed[:10]
     )
     more = f" (and {failed.size - 10} more)" if failed.size > 10 else ""
     first = RESULTS[getattr(RESULTS, result_name(codes[failed[0]]))]
-    raise ValueError(
-        f"{data.path}: the prediction failed {when} ({values}) for "
-        f"{failed.size} of {codes.size} rows: {listed}{more}. First reason: "
-        f"{first.removeprefix('diffimpact: ')}"
-    )
+    return f"{listed}{more}. First reason: {first.removeprefix('diffimpact: ')}"
 
 
 def _with_adjoint(problem: _Problem, adjoint) -> _Problem:
