@@ -6,7 +6,7 @@ from __future__ import annotations
 import os
 import tempfile
 
-from ._data import parse_integer, parse_number
+from ._units import parse_integer, parse_number
 
 
 def open_new(path, force: bool, binary: bool = False):

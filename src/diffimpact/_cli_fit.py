@@ -199,13 +199,19 @@ def _fit_and_write(args, out) -> int:
     import equinox as eqx
 
     import diffimpact as di
-    from diffimpact._observables import set_parameters
+    from diffimpact._observables import scene_spec, set_parameters
+    from diffimpact.scenes import PlanarBody
 
     data = di.load_experiments(args.data)
-    scene = args.scene or data.scene
+    declared = data.declarations is not None
+    scene = args.scene or data.scene or ("planar_body" if declared else None)
     if scene is None:
         raise ValueError(f"{args.data}: no 'scene' column; pass --scene")
-    experiment = di.Experiment.default(scene)
+    spec = scene_spec(scene)
+    if declared and spec.cls is PlanarBody:  # the body the file declares
+        experiment = di.Experiment.from_file(data)
+    else:
+        experiment = spec.default()
     if args.law != "jackson-green":
         experiment = experiment.__class__(
             experiment.scene,

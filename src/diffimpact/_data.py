@@ -24,45 +24,17 @@ import csv
 import dataclasses
 import math
 import os
-import re
 
 import numpy as np
 
-# unit suffix -> (dimension, factor to SI)
-UNITS: dict[str, tuple[str, float]] = {
-    "m": ("length", 1.0),
-    "mm": ("length", 1e-3),
-    "um": ("length", 1e-6),
-    "s": ("time", 1.0),
-    "ms": ("time", 1e-3),
-    "us": ("time", 1e-6),
-    "m_s": ("velocity", 1.0),
-    "mm_s": ("velocity", 1e-3),
-    "deg": ("angle", math.pi / 180.0),
-    "rad": ("angle", 1.0),
-    "rad_s": ("angular_velocity", 1.0),
-    "deg_s": ("angular_velocity", math.pi / 180.0),
-    "rpm": ("angular_velocity", 2.0 * math.pi / 60.0),
-    "kg": ("mass", 1.0),
-    "g": ("mass", 1e-3),
-    "n": ("force", 1.0),
-    "kn": ("force", 1e3),
-    "pa": ("stress", 1.0),
-    "mpa": ("stress", 1e6),
-    "gpa": ("stress", 1e9),
-}
-
-_SI = {
-    "length": "m",
-    "time": "s",
-    "velocity": "m/s",
-    "angle": "rad",
-    "angular_velocity": "rad/s",
-    "mass": "kg",
-    "force": "N",
-    "stress": "Pa",
-    "dimensionless": "-",
-}
+from ._declarations import Declarations, format_declarations, read_declarations
+from ._units import (
+    SI,
+    UNITS,
+    DataError,
+    parse_number,
+    units_of,
+)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -122,10 +94,6 @@ QUANTITIES: dict[str, Quantity] = {
 }
 
 
-class DataError(ValueError):
-    """A problem with an experiment file, naming the file, row and column."""
-
-
 @dataclasses.dataclass(frozen=True)
 class Column:
     """How a CSV column maps to a quantity (``factor`` converts to SI)."""
@@ -170,12 +138,12 @@ def parse_column(header: str, where: str = "") -> Column:
     if not unit:
         raise DataError(
             f"{where}column {header!r} has no unit: write it as "
-            f"'{quantity}_<unit>' with a {dim} unit ({_units_of(dim)})"
+            f"'{quantity}_<unit>' with a {dim} unit ({units_of(dim)})"
         )
     if unit not in UNITS or UNITS[unit][0] != dim:
         raise DataError(
             f"{where}column {header!r}: unit {unit!r} does not fit {quantity!r} "
-            f"(dimension: {dim}); expected one of {_units_of(dim)}"
+            f"(dimension: {dim}); expected one of {units_of(dim)}"
         )
     return Column(header, quantity, unit, UNITS[unit][1], is_sigma)
 
@@ -183,11 +151,7 @@ def parse_column(header: str, where: str = "") -> Column:
 def unit_label(quantity: str) -> str:
     """`` [SI unit]`` of a quantity for a figure's axis ("" if dimensionless)."""
     dim = QUANTITIES[quantity].dimension if quantity in QUANTITIES else ""
-    return "" if dim in ("", "dimensionless") else f" [{_SI[dim]}]"
-
-
-def _units_of(dim: str) -> str:
-    return ", ".join(u for u, (d, _) in UNITS.items() if d == dim)
+    return "" if dim in ("", "dimensionless") else f" [{SI[dim]}]"
 
 
 @dataclasses.dataclass(frozen=True)
@@ -201,6 +165,8 @@ class ExperimentData:
     - `checks`: quantity -> array ``(n,)``, NaN where empty: columns the model
       is checked against before a fit (a planar body's contact Jacobian rows),
       never used as inputs;
+    - `declarations`: the body a planar-body file declares above its header
+      (`Declarations`, in SI units), or None;
     - `provenance`: the ``#`` lines before the header; `path`: the file.
     - `lines`: the line number in the file of each row, shape ``(n,)``: every
       message, residual file and plot names a row by it.
@@ -215,6 +181,7 @@ class ExperimentData:
     columns: dict[str, Column]
     lines: np.ndarray | None = None
     checks: dict[str, np.ndarray] = dataclasses.field(default_factory=dict)
+    declarations: Declarations | None = None
 
     @property
     def n(self) -> int:
@@ -273,14 +240,17 @@ def load_experiments(path: str | os.PathLike) -> ExperimentData:
     A provenance line ``angles: clockwise`` declares clockwise-positive
     angles: ``orientation``, ``angular_velocity_before`` and
     ``angular_velocity`` are negated to the counter-clockwise convention of
-    the scenes.
+    the scenes.  Lines ``body:``, ``shape:``, ``body_material:`` and
+    ``flat_material:`` declare a planar body (`read_declarations`), read
+    and checked here.
     """
     path = os.fspath(path)
     lines = _read_lines(path)
-    provenance, body_start = [], 0
+    provenance, preamble, body_start = [], [], 0
     for i, line in enumerate(lines):
         if line.startswith("#"):
             provenance.append(line.lstrip("#").strip())
+            preamble.append((i + 1, provenance[-1]))
         elif line.strip():
             body_start = i
             break
@@ -370,6 +340,7 @@ def load_experiments(path: str | os.PathLike) -> ExperimentData:
             {"input": inputs, "output": outputs, "check": checks}[role][
                 col.quantity
             ] = arr
+    declarations = read_declarations(preamble, path)
     if _clockwise(provenance, path):
         for q in _SIGNED_ANGLES:
             for group in (inputs, outputs, checks):
@@ -409,6 +380,7 @@ def load_experiments(path: str | os.PathLike) -> ExperimentData:
         columns={c.header: c for c in columns.values()},
         lines=line_numbers,
         checks=checks,
+        declarations=declarations,
     )
 
 
@@ -435,32 +407,6 @@ def _read_lines(path: str) -> list[str]:
     return text.splitlines()
 
 
-# A plain decimal number, or inf / nan spelled out (reported as not finite
-# where a finite number is needed).  Python's float() also reads "1_000" and
-# non-ASCII digits: "0_290" in a cell would be read as 290, a silent wrong value.
-_NUMBER = re.compile(
-    r"\s*[+-]?(?:(?:[0-9]+\.?[0-9]*|\.[0-9]+)(?:[eE][+-]?[0-9]+)?|inf(?:inity)?|nan)\s*",
-    re.IGNORECASE,
-)
-
-
-def parse_number(text: str) -> float:
-    """``text`` as a float if it is written as a plain decimal number (digits,
-    one point, an exponent; ``inf`` or ``nan`` spelled out); ValueError
-    otherwise."""
-    if not isinstance(text, str) or not _NUMBER.fullmatch(text):
-        raise ValueError(f"{text!r} is not a number")
-    return float(text)
-
-
-def parse_integer(text: str) -> int:
-    """``text`` as an int if it is written as plain digits; ValueError
-    otherwise (``int`` also reads ``"1_0"`` as 10)."""
-    if not isinstance(text, str) or not re.fullmatch(r"\s*[+-]?[0-9]+\s*", text):
-        raise ValueError(f"{text!r} is not an integer")
-    return int(text)
-
-
 def finite_number(text: str, where: str) -> float:
     """``text`` as a finite float, or a `DataError` that starts with ``where``."""
     try:
@@ -484,7 +430,7 @@ def _cell(text: str, col: Column, path: str, lineno: int) -> float:
     if q.nonnegative and x < 0:
         raise DataError(
             f"{where}: {text} is negative; {q.name} ({q.doc}) must be >= 0 "
-            f"in {col.unit or _SI[q.dimension]}"
+            f"in {col.unit or SI[q.dimension]}"
         )
     if not col.is_sigma and x * col.factor > q.maximum:
         raise DataError(
@@ -495,14 +441,26 @@ def _cell(text: str, col: Column, path: str, lineno: int) -> float:
 
 
 def write_experiments(
-    path, columns: dict[str, np.ndarray], *, provenance: str = "", scene=None
+    path,
+    columns: dict[str, np.ndarray],
+    *,
+    provenance: str = "",
+    scene=None,
+    body=None,
 ):
     """Write an experiment CSV in the schema above (refuses to overwrite).
 
     `columns` maps column names (with units, as in the schema) to arrays in
-    the units of the name.  Used by the synthetic-data script and the tests.
+    the units of the name; `provenance` is written as ``#`` lines above the
+    header and `scene` as a ``scene`` column.  `body`: a
+    `diffimpact.scenes.PlanarBody` whose declarations (shape, mass, inertia,
+    centre of mass, materials; in SI units) are written above the header,
+    so that the file can be fitted on its own (`Experiment.from_file`,
+    ``diffimpact fit``); its state is not written (the rows give it).
     """
     path = os.fspath(path)
+    if body is not None:
+        provenance = "\n".join(filter(None, [provenance, format_declarations(body)]))
     if os.path.exists(path):
         raise FileExistsError(f"{path} exists; remove it first or choose another name")
     if not columns:

@@ -35,6 +35,7 @@ import numpy as np
 import optax
 
 from ._data import ExperimentData, load_experiments
+from ._declared_body import check_declared
 from ._lsq import RowBlocks, least_squares, workers
 from ._observables import (
     Experiment,
@@ -55,6 +56,7 @@ from ._residuals import (
 )
 from ._result import RESULTS, SolverError, result_name
 from ._transforms import make_transform
+from .scenes._body import PlanarBody
 
 _SOLVERS = ("levenberg-marquardt", "gauss-newton", "adam", "lbfgs")
 # Singular values of the scaled Jacobian below this fraction of the largest
@@ -470,15 +472,19 @@ def resolve(data, experiment, free):
         raise ValueError(f"`free` names a parameter twice: {free}")
     if not isinstance(data, ExperimentData):
         data = load_experiments(data)
+    if experiment is None and data.scene is None and data.declarations is None:
+        raise ValueError(
+            f"{data.path}: no 'scene' column; pass `experiment` (a scene name "
+            "or an Experiment)"
+        )
     if experiment is None:
-        if data.scene is None:
-            raise ValueError(
-                f"{data.path}: no 'scene' column; pass `experiment` (a scene name "
-                "or an Experiment)"
-            )
-        experiment = data.scene
-    if isinstance(experiment, str):
-        experiment = scene_spec(experiment).default()
+        experiment = Experiment.from_file(data)
+    elif isinstance(experiment, str):
+        spec = scene_spec(experiment)
+        declared = data.declarations is not None and spec.cls is PlanarBody
+        experiment = Experiment.from_file(data) if declared else spec.default()
+    elif data.declarations is not None:
+        check_declared(data.declarations, experiment.scene, data.path)
     spec = scene_spec(experiment.scene)
     if data.scene is not None and scene_spec(data.scene).name != spec.name:
         raise ValueError(

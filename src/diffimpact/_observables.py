@@ -22,7 +22,14 @@ import jax.numpy as jnp
 import numpy as np
 
 from ._checks import as_float
-from ._data import QUANTITIES, DataError, parse_column
+from ._data import (
+    QUANTITIES,
+    DataError,
+    ExperimentData,
+    load_experiments,
+    parse_column,
+)
+from ._declared_body import declared_body
 from ._laws._base import AbstractNormalLaw
 from ._laws._friction import Friction
 from ._laws._jackson_green import JacksonGreen
@@ -32,6 +39,7 @@ from ._simulate import simulate
 from ._solver import SolverSettings
 from .scenes._bar import FreeBar
 from .scenes._base import AbstractScene
+from .scenes._body import PlanarBody
 from .scenes._link import RotatingLink
 from .scenes._normal import NormalImpact
 from .scenes._planar import SphereOnIncline
@@ -59,6 +67,34 @@ class Experiment(eqx.Module):
         the ball and prism of Alaci, Filote & Ciornei, Jackson-Green law,
         friction ``mu = 0.2``)."""
         return scene_spec(scene).default()
+
+    @staticmethod
+    def from_file(data) -> Experiment:
+        """The experiment an experiment file names: for a planar-body file,
+        the body it declares above its header (shape, mass, inertia, centre
+        of mass, materials; docs: Data formats), in the state of its first
+        row, with the Jackson-Green law and friction ``mu = 0.2`` as start;
+        for any other file, its scene's built-in experiment (`default`).
+
+        **Arguments:** `data`: a path or an `ExperimentData`."""
+        if not isinstance(data, ExperimentData):
+            data = load_experiments(data)
+        if data.declarations is not None:
+            if data.scene is not None and scene_spec(data.scene).cls is not PlanarBody:
+                raise DataError(
+                    f"{data.declarations.where(data.path)}: the file declares a "
+                    f"planar body, but its scene column says {data.scene!r}; "
+                    "write 'planar_body' (or leave the column out)"
+                )
+            scene = declared_body(data.declarations, data.inputs, data.path)
+            return Experiment(scene, JacksonGreen(), Friction(0.2))
+        if data.scene is None:
+            raise DataError(
+                f"{data.path}: no 'scene' column and no body declared; add a "
+                f"'scene' column naming one of {sorted(SCENES)}, or declare the "
+                "planar body above the header"
+            )
+        return scene_spec(data.scene).default()
 
 
 # The short names every scene with friction accepts; anything else by its
@@ -162,6 +198,29 @@ _NORMAL = {k: v for k, v in _PLATE.items() if not k.startswith("mu")}
 _LINK = {**_PLATE_NO_RADIUS, "length": "scene.length"}
 
 
+def _planar_body() -> Experiment:
+    raise ValueError(
+        "scene 'planar_body' has no built-in body: declare the body above the "
+        "file's header ('# body: ...', '# shape: ...', '# body_material: ...', "
+        "'# flat_material: ...'; docs: Data formats) and use "
+        "Experiment.from_file, or give a diffimpact.scenes.PlanarBody in an "
+        "Experiment"
+    )
+
+
+# A planar body and a flat may both yield; the contact takes the lower
+# strength (G-3).  `yield_strength` names the flat's, the common case of a
+# hard body on a softer flat; `body_yield_strength` the body's.
+_PLANAR_BODY = {
+    **_PLATE_NO_RADIUS,
+    "body_yield_strength": "scene.body.yield_strength",
+    "body_youngs_modulus": "scene.body.youngs_modulus",
+    "inertia": "scene.inertia",
+    "com_x": "scene.com_x",
+    "com_y": "scene.com_y",
+}
+
+
 def _sphere_tangential_before(scene):
     return scene.impact_speed * jnp.sin(scene.angle)
 
@@ -179,6 +238,7 @@ SCENES: dict[str, SceneSpec] = {
         SceneSpec("normal_impact", NormalImpact, _normal_impact, _NORMAL),
         SceneSpec("rotating_link", RotatingLink, _rotating_link, _LINK),
         SceneSpec("free_bar", FreeBar, _free_bar, _BAR),
+        SceneSpec("planar_body", PlanarBody, _planar_body, _PLANAR_BODY),
     )
 }
 

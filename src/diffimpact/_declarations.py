@@ -1,0 +1,283 @@
+"""Declarations in an experiment file's preamble: the body of a planar-body
+file, given once per file.
+
+A file of impacts of one rigid body (a tracked drop, say) declares the body
+in ``#`` lines above the header, each ``key: item, item, ...``:
+
+    # body: mass_g=50, inertia_kg_m2=1.4e-5, com_x_mm=5
+    # shape: ellipse, a_mm=30, b_mm=15
+    # body_material: youngs_modulus_gpa=200, poisson_ratio=0.3
+    # flat_material: youngs_modulus_gpa=205, poisson_ratio=0.29, yield_strength_mpa=400
+
+An item is ``<quantity>_<unit>=<number>`` with the units of the data columns
+(`UNITS`); a dimensionless quantity takes no unit.  The shape's first item
+is its kind; a rounded polygon's vertices are ``x y`` pairs separated by
+semicolons (``vertices_mm=0 0; 30 0; 15 20``).  Everything is read into SI
+units here, with messages that name the file, the line and the item; the
+scene itself is made from it by `diffimpact.Experiment.from_file`.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+
+from ._units import SI, UNITS, DataError, parse_number, units_of
+
+_MATERIAL = {
+    "youngs_modulus": "stress",
+    "poisson_ratio": "dimensionless",
+    "yield_strength": "stress",
+    "density": "density",
+}
+
+# key -> (quantity -> dimension, the quantities it must give)
+_KEYS: dict[str, tuple[dict[str, str], tuple[str, ...]]] = {
+    "body": (
+        {
+            "mass": "mass",
+            "inertia": "inertia",
+            "com_x": "length",
+            "com_y": "length",
+            "incline": "angle",
+            "gravity": "acceleration",
+        },
+        ("mass", "inertia"),
+    ),
+    "body_material": (_MATERIAL, ("youngs_modulus", "poisson_ratio")),
+    "flat_material": (_MATERIAL, ("youngs_modulus", "poisson_ratio")),
+}
+
+# shape kind -> its quantities (all lengths), every one required
+SHAPES: dict[str, tuple[str, ...]] = {
+    "disk": ("radius",),
+    "ellipse": ("a", "b"),
+    "capsule": ("half_length", "radius"),
+    "rounded_polygon": ("vertices", "radius"),
+}
+
+KEYS = (*_KEYS, "shape")
+
+
+@dataclasses.dataclass(frozen=True)
+class Declarations:
+    """A planar-body file's declarations, in SI units.
+
+    - `body`: ``mass``, ``inertia`` and any of ``com_x``, ``com_y``,
+      ``incline``, ``gravity``;
+    - `shape`: ``(kind, {quantity: value})``; a rounded polygon's
+      ``vertices`` is a tuple of ``(x, y)`` pairs;
+    - `body_material`, `flat_material`: ``youngs_modulus``,
+      ``poisson_ratio`` and any of ``yield_strength``, ``density``;
+    - `lines`: the file line of each declaration, by key.
+    """
+
+    body: dict
+    shape: tuple
+    body_material: dict
+    flat_material: dict
+    lines: dict
+
+    def where(self, path: str) -> str:
+        """``path, lines a, b, ...``: where the declarations are."""
+        lines = ", ".join(str(n) for n in sorted(self.lines.values()))
+        return f"{path}, lines {lines} (the body declarations)"
+
+
+def _key(text: str) -> str:
+    return text.strip().lower().replace(" ", "_").replace("-", "_")
+
+
+def read_declarations(preamble, path: str) -> Declarations | None:
+    """The declarations among ``preamble`` (pairs ``(line number, text)`` of
+    the ``#`` lines above the header, without the ``#``); None when the file
+    declares nothing.  A file that declares some of the body must declare
+    all of it: ``body``, ``shape``, ``body_material`` and ``flat_material``."""
+    found, lines = {}, {}
+    for lineno, text in preamble:
+        key, sep, value = text.partition(":")
+        key = _key(key)
+        if not sep or key not in KEYS:
+            continue
+        where = f"{path}, line {lineno} ('{key}:')"
+        if key in found:
+            raise DataError(
+                f"{where}: declared twice (first on line {lines[key]}); give "
+                "each declaration once"
+            )
+        items = [i.strip() for i in value.split(",")]
+        if key == "shape":
+            found[key] = _shape(items, where)
+        else:
+            quantities, required = _KEYS[key]
+            found[key] = _items(items, quantities, required, where)
+        lines[key] = lineno
+    if not found:
+        return None
+    missing = [k for k in KEYS if k not in found]
+    if missing:
+        raise DataError(
+            f"{path}: the file declares {', '.join(sorted(found))} but not "
+            f"{', '.join(missing)}; a planar body is declared by four lines, e.g. "
+            "'# body: mass_kg=0.05, inertia_kg_m2=1.4e-5', '# shape: ellipse, "
+            "a_mm=30, b_mm=15', '# body_material: youngs_modulus_gpa=200, "
+            "poisson_ratio=0.3', '# flat_material: youngs_modulus_gpa=205, "
+            "poisson_ratio=0.29, yield_strength_mpa=400'"
+        )
+    return Declarations(lines=lines, **found)
+
+
+def _items(items, quantities: dict, required, where: str) -> dict:
+    out = {}
+    for item in items:
+        name, value = _split(item, where, quantities)
+        quantity, factor = _quantity(name, quantities, where)
+        if quantity in out:
+            raise DataError(f"{where}: {quantity!r} is given twice")
+        if quantity == "vertices":
+            out[quantity] = _vertices(value, factor, where, name)
+        else:
+            out[quantity] = _value(value, quantity, factor, where, name)
+    missing = [q for q in required if q not in out]
+    if missing:
+        raise DataError(
+            f"{where}: {', '.join(repr(q) for q in missing)} missing; expected "
+            f"{', '.join(_form(q, quantities) for q in required)}"
+        )
+    return out
+
+
+def _shape(items, where: str) -> tuple:
+    kind = _key(items[0])
+    if kind not in SHAPES:
+        raise DataError(
+            f"{where}: unknown shape {items[0]!r}; the first item is the shape's "
+            f"kind, one of {', '.join(SHAPES)} (e.g. '# shape: ellipse, "
+            "a_mm=30, b_mm=15')"
+        )
+    names = SHAPES[kind]
+    quantities = {q: "length" for q in names}
+    return kind, _items(items[1:], quantities, names, f"{where}, {kind}")
+
+
+def _split(item: str, where: str, quantities: dict) -> tuple[str, str]:
+    name, sep, value = item.partition("=")
+    if not sep or not name.strip():
+        raise DataError(
+            f"{where}: {item!r} is not an item '<quantity>_<unit>=<number>'; "
+            f"expected items of {', '.join(_form(q, quantities) for q in quantities)}"
+        )
+    return name.strip(), value.strip()
+
+
+def _form(quantity: str, quantities: dict) -> str:
+    dim = quantities[quantity]
+    return quantity if dim == "dimensionless" else f"{quantity}_<{dim} unit>"
+
+
+def _quantity(name: str, quantities: dict, where: str) -> tuple[str, float]:
+    """The quantity and the factor to SI of an item's name."""
+    if name in quantities:
+        if quantities[name] == "dimensionless":
+            return name, 1.0
+        dim = quantities[name]
+        raise DataError(
+            f"{where}: {name!r} has no unit: write '{name}_<unit>' with a {dim} "
+            f"unit ({units_of(dim)})"
+        )
+    for q in sorted(quantities, key=len, reverse=True):
+        if name.startswith(q + "_"):
+            unit, dim = name[len(q) + 1 :].lower(), quantities[q]
+            if dim == "dimensionless":
+                raise DataError(
+                    f"{where}: {q!r} is dimensionless and takes no unit suffix"
+                )
+            if unit not in UNITS or UNITS[unit][0] != dim:
+                raise DataError(
+                    f"{where}: unit {unit!r} does not fit {q!r} (dimension: "
+                    f"{dim}); expected one of {units_of(dim)}"
+                )
+            return q, UNITS[unit][1]
+    raise DataError(
+        f"{where}: unknown item {name!r}; expected "
+        f"{', '.join(_form(q, quantities) for q in quantities)}"
+    )
+
+
+def _value(text: str, quantity: str, factor: float, where: str, name: str) -> float:
+    try:
+        x = parse_number(text)
+    except ValueError:
+        raise DataError(f"{where}, {name}: {text!r} is not a number") from None
+    # Only a material that never yields has an infinite value.
+    if math.isnan(x) or (
+        math.isinf(x) and not (quantity == "yield_strength" and x > 0)
+    ):
+        raise DataError(f"{where}, {name}: {text!r} is not a finite number")
+    return x * factor
+
+
+def _vertices(text: str, factor: float, where: str, name: str) -> tuple:
+    pairs = []
+    for point in text.split(";"):
+        xy = point.split()
+        if len(xy) != 2:
+            raise DataError(
+                f"{where}, {name}: {point.strip()!r} is not a point 'x y'; give "
+                "the vertices as 'x y' pairs separated by semicolons, e.g. "
+                f"'{name}=0 0; 30 0; 15 20'"
+            )
+        pairs.append(tuple(_value(v, "vertices", factor, where, name) for v in xy))
+    return tuple(pairs)
+
+
+def format_declarations(scene) -> str:
+    """The declaration lines (without ``#``) of a `PlanarBody` ``scene``, in SI
+    units: the provenance of `write_experiments` for a planar-body file."""
+    shape = scene.shape
+    kind = {
+        "Disk": "disk",
+        "Ellipse": "ellipse",
+        "Capsule": "capsule",
+        "RoundedPolygon": "rounded_polygon",
+    }.get(type(shape).__name__)
+    if kind is None:
+        raise TypeError(
+            f"{type(shape).__name__}: a file can declare only the built-in shapes "
+            f"({', '.join(SHAPES)})"
+        )
+
+    def si(quantity, dim):
+        return quantity if dim == "dimensionless" else f"{quantity}_{_SI_SUFFIX[dim]}"
+
+    def items(obj, quantities):
+        return ", ".join(
+            f"{si(q, d)}={float(getattr(obj, q))!r}"
+            for q, d in quantities.items()
+            if hasattr(obj, q)
+        )
+
+    shape_items = []
+    for q in SHAPES[kind]:
+        v = getattr(shape, q)
+        if q == "vertices":
+            text = "; ".join(f"{float(x)!r} {float(y)!r}" for x, y in v)
+            shape_items.append(f"vertices_m={text}")
+        else:
+            shape_items.append(f"{q}_m={float(v)!r}")
+    return "\n".join(
+        [
+            f"body: {items(scene, _KEYS['body'][0])}",
+            f"shape: {', '.join([kind, *shape_items])}",
+            f"body_material: {items(scene.body, _MATERIAL)}",
+            f"flat_material: {items(scene.flat, _MATERIAL)}",
+        ]
+    )
+
+
+# The SI unit suffix of each dimension a declaration uses.
+_SI_SUFFIX = {
+    dim: next(u for u, (d, f) in UNITS.items() if d == dim and f == 1.0)
+    for dim in SI
+    if dim != "dimensionless"
+}
