@@ -7,7 +7,9 @@ output, with matching ``sigma_`` columns) and
 ``synthetic_sphere_on_incline_noiseless.csv`` (exact model outputs), from the
 ball-prism scene (the ball and prism of Alaci, Filote & Ciornei, the
 Jackson-Green law) with the true parameters in TRUTH, over a grid of drop
-heights and incline angles.  The seed is fixed, so the files are reproducible.
+heights and incline angles; and ``synthetic_ellipse_noise2pct.csv``, impacts
+of a planar ellipse from random measured states, its body declared above the
+header.  The seeds are fixed, so the files are reproducible.
 """
 
 from __future__ import annotations
@@ -86,6 +88,68 @@ def noisy_normal_impacts(path, seed: int, noise: float = NOISE):
     return path
 
 
+# A planar body from measured pre-impact states (a tracked drop): a 30 x 15 mm
+# steel ellipse of 50 g whose centre of mass is 5 mm off its centre, on a
+# steel flat; Jackson-Green contact with Coulomb friction.  The file declares
+# the body above its header, so that `diffimpact fit` reads it on its own.
+ELLIPSE_TRUTH = {"mu": 0.25, "yield_strength": 400e6}
+ELLIPSE_ROWS, ELLIPSE_NOISE, ELLIPSE_SEED = 200, 0.02, 20261127
+
+
+def ellipse_experiment():
+    steel = di.Material(200e9, 0.3, np.inf, 7850.0)
+    flat = di.Material(205e9, 0.29, ELLIPSE_TRUTH["yield_strength"], 7850.0)
+    inertia = 0.05 * (0.03**2 + 0.015**2) / 4  # a uniform ellipse's, about its centre
+    body = di.scenes.PlanarBody(
+        0.05, inertia, di.scenes.Ellipse(0.03, 0.015), steel, flat,
+        angle=0.0, velocity_x=0.0, velocity_y=-2.0, com_x=0.005,
+    )  # fmt: skip
+    return di.Experiment(body, di.JacksonGreen(), di.Friction(ELLIPSE_TRUTH["mu"]))
+
+
+def noisy_ellipse_impacts(path):
+    """ELLIPSE_ROWS impacts from random states (any orientation, 1.5-3 m/s
+    down, -1 to 1 m/s sideways, -5 to 5 rad/s); Gaussian noise of 2 % of each
+    measured quantity's RMS, with the sigma columns that say so."""
+    exp = ellipse_experiment()
+    rng = np.random.default_rng(ELLIPSE_SEED)
+    n = ELLIPSE_ROWS
+    state = {
+        "orientation_deg": rng.uniform(-180.0, 180.0, n),
+        "velocity_x_m_s": rng.uniform(-1.0, 1.0, n),
+        "velocity_y_m_s": -rng.uniform(1.5, 3.0, n),
+        "angular_velocity_before_rad_s": rng.uniform(-5.0, 5.0, n),
+    }
+    outputs = ("velocity_x_after", "velocity_y_after", "angular_velocity")
+    out = jax.jit(jax.vmap(lambda row: di.predict(exp, row)))(
+        {k: jnp.asarray(v) for k, v in state.items()}
+    )
+    cols = dict(state)
+    for q in outputs:
+        exact = np.asarray(out[q])
+        sigma = ELLIPSE_NOISE * np.sqrt(np.mean(exact**2))
+        name = q + ("_rad_s" if q == "angular_velocity" else "_m_s")
+        cols[name] = exact + sigma * rng.standard_normal(n)
+        cols["sigma_" + name] = np.full(n, sigma)
+    truth = ", ".join(f"{k} = {v:g}" for k, v in ELLIPSE_TRUTH.items())
+    di.write_experiments(
+        path,
+        cols,
+        body=exp.scene,
+        provenance=(
+            "SYNTHETIC data made by data/make_synthetic.py (not measurements).\n"
+            "A 50 g steel ellipse (30 x 15 mm semi-axes, centre of mass 5 mm off "
+            "its centre) tracked before and after striking a steel flat: "
+            "Jackson-Green contact, Coulomb friction.\n"
+            f"True parameters: {truth} (the flat's yield strength, in Pa).\n"
+            f"Noise: Gaussian, 2 % of each quantity's RMS (seed {ELLIPSE_SEED}); "
+            "sigma_ columns give it.\n"
+            "The body, declared once for the file (SI units):"
+        ),
+    )
+    return path
+
+
 def simulate_grid():
     h, a = (x.ravel() for x in np.meshgrid(HEIGHTS_M, ANGLES_DEG, indexing="ij"))
     exp = true_experiment()
@@ -135,6 +199,10 @@ def main(argv=None):
             ),
         )
         print("wrote", path)
+    path = os.path.join(args.dir, "synthetic_ellipse_noise2pct.csv")
+    if os.path.exists(path) and args.force:
+        os.remove(path)
+    print("wrote", noisy_ellipse_impacts(path))
 
 
 if __name__ == "__main__":

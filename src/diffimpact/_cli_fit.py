@@ -532,7 +532,12 @@ def plot_loop(result, path, force=False) -> str:
         h = r.history
         ax.plot(np.asarray(h.deflection) * 1e6, np.asarray(h.force), lw=1.2)
     except (ValueError, TypeError) as err:  # a scene with no normal history
-        note = f"no force-deflection loop: {err}"
+        why = (
+            f"the {type(e.scene).__name__} solve keeps no force history"
+            if "n_history" in str(err)
+            else str(err)
+        )
+        note = f"no force-deflection loop: {why}"
         ax.text(0.5, 0.5, note, ha="center", wrap=True, transform=ax.transAxes)
     label = ", ".join(f"{q} = {v:.4g}" for q, v in row.items())
     ax.set(

@@ -22,7 +22,7 @@ from __future__ import annotations
 import dataclasses
 import math
 
-from ._units import SI, UNITS, DataError, parse_number, units_of
+from ._units import UNITS, DataError, parse_number, units_of
 
 _MATERIAL = {
     "youngs_modulus": "stress",
@@ -231,9 +231,35 @@ def _vertices(text: str, factor: float, where: str, name: str) -> tuple:
     return tuple(pairs)
 
 
+def _floats(pairs):
+    return [(float(x), float(y)) for x, y in pairs]
+
+
+# The unit each quantity is written in by `format_declarations`.
+_WRITE_UNIT = {
+    "mass": "g",
+    "inertia": "kg_m2",
+    "length": "mm",
+    "angle": "deg",
+    "acceleration": "m_s2",
+    "density": "kg_m3",
+    "youngs_modulus": "gpa",
+    "yield_strength": "mpa",
+}
+
+
+def _item(quantity: str, dim: str, value) -> str:
+    """``quantity_unit=value`` in the unit of `_WRITE_UNIT` (15 digits: read
+    back to within a unit in the last place)."""
+    if dim == "dimensionless":
+        return f"{quantity}={float(value):.15g}"
+    unit = _WRITE_UNIT.get(quantity, _WRITE_UNIT.get(dim))
+    return f"{quantity}_{unit}={float(value) / UNITS[unit][1]:.15g}"
+
+
 def format_declarations(scene) -> str:
-    """The declaration lines (without ``#``) of a `PlanarBody` ``scene``, in SI
-    units: the provenance of `write_experiments` for a planar-body file."""
+    """The declaration lines (without ``#``) of a `PlanarBody` ``scene``: the
+    provenance that `write_experiments(..., body=scene)` writes."""
     shape = scene.shape
     kind = {
         "Disk": "disk",
@@ -247,24 +273,19 @@ def format_declarations(scene) -> str:
             f"({', '.join(SHAPES)})"
         )
 
-    def si(quantity, dim):
-        return quantity if dim == "dimensionless" else f"{quantity}_{_SI_SUFFIX[dim]}"
-
     def items(obj, quantities):
-        return ", ".join(
-            f"{si(q, d)}={float(getattr(obj, q))!r}"
-            for q, d in quantities.items()
-            if hasattr(obj, q)
-        )
+        given = [q for q in quantities if hasattr(obj, q)]
+        return ", ".join(_item(q, quantities[q], getattr(obj, q)) for q in given)
 
     shape_items = []
     for q in SHAPES[kind]:
         v = getattr(shape, q)
         if q == "vertices":
-            text = "; ".join(f"{float(x)!r} {float(y)!r}" for x, y in v)
-            shape_items.append(f"vertices_m={text}")
+            mm = UNITS["mm"][1]
+            points = "; ".join(f"{x / mm:.15g} {y / mm:.15g}" for x, y in _floats(v))
+            shape_items.append(f"vertices_mm={points}")
         else:
-            shape_items.append(f"{q}_m={float(v)!r}")
+            shape_items.append(_item(q, "length", v))
     return "\n".join(
         [
             f"body: {items(scene, _KEYS['body'][0])}",
@@ -273,11 +294,3 @@ def format_declarations(scene) -> str:
             f"flat_material: {items(scene.flat, _MATERIAL)}",
         ]
     )
-
-
-# The SI unit suffix of each dimension a declaration uses.
-_SI_SUFFIX = {
-    dim: next(u for u, (d, f) in UNITS.items() if d == dim and f == 1.0)
-    for dim in SI
-    if dim != "dimensionless"
-}

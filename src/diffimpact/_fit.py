@@ -483,7 +483,7 @@ def resolve(data, experiment, free):
         spec = scene_spec(experiment)
         declared = data.declarations is not None and spec.cls is PlanarBody
         experiment = Experiment.from_file(data) if declared else spec.default()
-    elif data.declarations is not None:
+    if data.declarations is not None:
         check_declared(data.declarations, experiment.scene, data.path)
     spec = scene_spec(experiment.scene)
     if data.scene is not None and scene_spec(data.scene).name != spec.name:
