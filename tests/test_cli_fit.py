@@ -109,6 +109,7 @@ def test_fit_holdout_bad_arguments(tmp_path, capsys):
         (["--holdout", "0_5"], "argument --holdout: invalid number value: '0_5'"),
         (["--posterior", "--seed", str(2**64)], "--seed must be an integer in [0,"),
         (["--set", "radius=1_0e-3"], "--set: '1_0e-3' is not a number"),
+        (["--solver-steps", "0"], "--solver-steps must be an integer >= 1, got 0"),
     ],
 )
 def test_fit_numbers_are_plain_decimals(tmp_path, capsys, args, message):

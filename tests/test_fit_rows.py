@@ -214,3 +214,46 @@ def test_the_fits_predictions_are_the_models_at_its_estimate(noisy):
     k = r.quantities.index("cor_normal")
     np.testing.assert_allclose(r.predicted[:, k], direct, rtol=1e-9)
     assert np.isfinite(r.std_errors[0])
+
+
+class _Cliff:
+    """Two rows with residuals ``u - 1`` whose solves fail (the sentinel
+    residual) beyond ``u = 0.5``: the least-squares optimum lies where
+    one row cannot be predicted."""
+
+    mask = np.ones((2, 1), bool)
+
+    def evaluate(self, u):
+        import jax.numpy as jnp
+
+        u = float(np.asarray(u)[0])
+        r = np.array([u - 1.0, u - 1.0])
+        if u > 0.5:
+            r[1] = _lsq._FAILED_RESIDUAL
+        return _lsq._Evaluated(jnp.asarray(r), jnp.ones((2, 1)), jnp.asarray(0))
+
+
+@pytest.mark.parametrize("solver", ["levenberg-marquardt", "gauss-newton"])
+def test_a_fit_stopped_by_failing_rows_has_not_converged(solver):
+    """Every trial step past the edge is rejected: the fit stops near the
+    edge (u <= 0.5) and reports the failing row, not convergence.  (It used
+    to call the stalled cost converged: 8 noiseless rows of a low-inertia
+    ellipse gave mu = 0.2602 for a truth of 0.25, 'converged'.)"""
+    import jax.numpy as jnp
+
+    u, steps, converged, final, _ = _lsq.least_squares(
+        _Cliff(), jnp.asarray([0.0]), solver, 50, 1e-8, 1e-8, None
+    )
+    assert float(u[0]) <= 0.5 and not converged
+    assert list(final[3]) == [1]
+    # without the cliff the same solver converges to u = 1
+    cliff_free = _Cliff()
+    cliff_free.evaluate = lambda u: _lsq._Evaluated(
+        jnp.asarray(np.full(2, float(np.asarray(u)[0]) - 1.0)),
+        jnp.ones((2, 1)),
+        jnp.asarray(0),
+    )
+    u, _, converged, final, _ = _lsq.least_squares(
+        cliff_free, jnp.asarray([0.0]), solver, 50, 1e-8, 1e-8, None
+    )
+    assert converged and abs(float(u[0]) - 1.0) < 1e-8 and not len(final[3])

@@ -13,6 +13,7 @@ overwritten without ``--force``; the check happens before the fit starts.
 from __future__ import annotations
 
 import csv
+import dataclasses
 import json
 import os
 
@@ -83,6 +84,14 @@ def register(sub) -> None:
         type=integer,
         default=100,
         help="most optimiser steps (default 100)",
+    )
+    p.add_argument(
+        "--solver-steps",
+        type=integer,
+        default=None,
+        metavar="N",
+        help="step budget of each impact's ODE solve (SolverSettings.max_steps; "
+        "default 16384): raise it for rows whose solves run out of steps",
     )
     p.add_argument(
         "--holdout",
@@ -169,6 +178,10 @@ def run(args) -> int:
         )
     if args.max_steps < 1:
         raise ValueError(f"--max-steps must be an integer >= 1, got {args.max_steps}")
+    if args.solver_steps is not None and args.solver_steps < 1:
+        raise ValueError(
+            f"--solver-steps must be an integer >= 1, got {args.solver_steps}"
+        )
     if args.seed is not None and args.holdout is None and not args.posterior:
         raise ValueError(
             "--seed draws the held-out rows or the chains: give it with --holdout "
@@ -219,6 +232,13 @@ def _fit_and_write(args, out) -> int:
             experiment.friction,
             experiment.method,
             experiment.settings,
+        )
+    if args.solver_steps is not None:
+        experiment = dataclasses.replace(
+            experiment,
+            settings=dataclasses.replace(
+                experiment.settings, max_steps=args.solver_steps
+            ),
         )
     if args.compliant:
         friction = experiment.friction

@@ -756,6 +756,7 @@ def _result(
         finally:
             blocks.close()
         final = tuple(np.asarray(x) for x in (e.residual, e.jacobian, e.differenced))
+        final += (np.zeros(0, int),)
     r = final[0].reshape(mask.shape)
     # a row that failed (its sentinel residual) or is undefined there is named
     # by the full check, which raises
@@ -852,7 +853,20 @@ def _result(
             "the fitted values (a solver artefact, e.g. in a stick phase); their "
             "derivatives, and so the covariance, come from central differences"
         )
-    if not converged:
+    blocked = final[3] if final is not None else ()
+    if len(blocked):
+        where = ", ".join(str(row_label(data.lines, i)) for i in blocked[:5])
+        more = f" and {len(blocked) - 5} more" if len(blocked) > 5 else ""
+        notes.append(
+            f"{solver} did not converge: its last trial steps were rejected "
+            f"because the solves of {len(blocked)} row(s) failed there ({where}"
+            f"{more}), so it stopped at the edge of the region where they fail, "
+            "not at a minimum. Those rows need more solver steps: raise "
+            "max_steps of the experiment's SolverSettings (the command line's "
+            "--solver-steps; a stiff stick phase, e.g. a body of small "
+            "inertia, needs many), or check those rows"
+        )
+    elif not converged:
         notes.append(
             f"{solver} did not converge in {steps} iterations; raise max_steps or "
             "start closer"

@@ -33,6 +33,7 @@ import numpy as np
 import optimistix as optx
 
 from ._residuals import (
+    _FAILED_RESIDUAL,
     _init,
     _predictions,
     _Problem,
@@ -260,6 +261,13 @@ class RowBlocks:
         self._pool.shutdown(wait=False)
 
 
+def _failed_rows(residual, mask) -> np.ndarray:
+    """The rows (indices) whose prediction failed at a trial point: their
+    residuals are the sentinel `_FAILED_RESIDUAL`."""
+    r = np.asarray(residual).reshape(mask.shape)
+    return np.nonzero(np.any(mask & (r == _FAILED_RESIDUAL), axis=1))[0]
+
+
 def _settled(sizes) -> bool:
     """Whether the Gauss-Newton step just computed, once taken, lands within
     the tolerance of the optimum: the stopping rule of a linearly convergent
@@ -286,12 +294,17 @@ def least_squares(blocks: RowBlocks, u0, solver_name, max_steps, rtol, atol, bar
                   first=0, stop_if_rising=False):  # fmt: skip
     """optimistix's Gauss-Newton or Levenberg-Marquardt from ``u0``, one
     compiled step at a time (so that the command line can show progress).
-    Returns ``(u, steps, converged, (r, J, d), rose)``: the last accepted
-    point with the residuals and their Jacobian there, and how many rows of
-    it came from central differences (None before any step).
+    Returns ``(u, steps, converged, (r, J, d, blocked), rose)``: the last
+    accepted point with the residuals and their Jacobian there, how many rows
+    of it came from central differences, and the rows (indices) whose solves
+    failed at the trial points rejected since (None before any step).  A fit
+    whose last trials were rejected because rows failed there has not
+    converged, whatever its step sizes say: it stopped at the edge of the
+    region where those rows fail, not at a minimum.
     ``stop_if_rising``: return at once, with ``rose`` True and the last
     accepted point, when a trial point's cost exceeds that point's (for
-    Gauss-Newton, which accepts every step)."""
+    Gauss-Newton, which accepts every step); Gauss-Newton does the same,
+    whatever ``stop_if_rising``, at a trial point where rows fail."""
     if solver_name == "levenberg-marquardt":
         solver = optx.LevenbergMarquardt(rtol=rtol, atol=atol)
     else:
@@ -304,16 +317,24 @@ def least_squares(blocks: RowBlocks, u0, solver_name, max_steps, rtol, atol, bar
     steps, converged, final = 0, False, None
     best, stalled, cost = math.inf, 0, math.inf
     sizes = []  # the Gauss-Newton steps from the accepted points, scaled
+    blocked = np.zeros(0, int)  # rows failed at the trials since acceptance
     while steps < max_steps:
         done, result = _terminate(solver, _known_fn, u, evaluated, options, state, tags)
         if bool(done):
-            converged = result == optx.RESULTS.successful
+            converged = result == optx.RESULTS.successful and not blocked.size
             break
         if steps:  # (at the first step the trial point is the start, done)
             evaluated = blocks.evaluate(state.y_eval)
+            failed = _failed_rows(evaluated.residual, blocks.mask)
+            if failed.size and solver_name != "levenberg-marquardt":
+                # Gauss-Newton would accept the point and step on from its
+                # sentinel residuals: stop at the last good point instead
+                final = None if final is None else (*final[:3], failed)
+                return u, steps, False, final, True
             if stop_if_rising:
                 trial = 0.5 * float(np.sum(np.asarray(evaluated.residual) ** 2))
                 if not trial <= cost * (1.0 + _RISE):
+                    final = None if final is None else (*final[:3], blocked)
                     return u, steps, False, final, True
         u, state, _ = _step(solver, _known_fn, u, evaluated, options, state, tags)
         steps += 1
@@ -322,7 +343,10 @@ def least_squares(blocks: RowBlocks, u0, solver_name, max_steps, rtol, atol, bar
                 np.asarray(x)
                 for x in (evaluated.residual, evaluated.jacobian, evaluated.differenced)
             )
-        r, jac, _ = final
+            blocked = np.zeros(0, int)
+        elif steps > 1:
+            blocked = np.union1d(blocked, failed)
+        r, jac = final[:2]
         cost = 0.5 * float(np.sum(r**2))
         if bar:
             bar.update(first + steps, cost)
@@ -345,7 +369,7 @@ def least_squares(blocks: RowBlocks, u0, solver_name, max_steps, rtol, atol, bar
                 # step^2, far below the solves' own rounding).
                 u = u + newton
                 final = (r + jac @ newton, jac, final[2])
-                converged = True
+                converged = not blocked.size
                 break
         # At the optimum of a noisy problem the residuals carry the solver's
         # own noise (~1e-9 relative), so a step's actual decrease can fall below
@@ -357,6 +381,7 @@ def least_squares(blocks: RowBlocks, u0, solver_name, max_steps, rtol, atol, bar
         else:
             stalled += 1
             if stalled >= _STALL:
-                converged = True
+                converged = not blocked.size
                 break
+    final = None if final is None else (*final[:3], blocked)
     return u, steps, bool(converged), final, False
