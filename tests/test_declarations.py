@@ -167,6 +167,7 @@ def test_fit_a_declared_body_from_the_command_line(tmp_path, capsys):
     di.write_experiments(path, cols, body=body)
     out = tmp_path / "out"
     argv = ["fit", str(path), "--free", "mu", "--out", str(out), "--no-progress"]
+    argv += ["--solver-steps", "20000"]  # the solves' budget, from the CLI
     assert main(argv) == 0
     printed = capsys.readouterr().out
     assert "(planar_body)" in printed
@@ -174,3 +175,24 @@ def test_fit_a_declared_body_from_the_command_line(tmp_path, capsys):
     fit = json.loads((out / "fit.json").read_text())
     assert fit["scene"] == "planar_body"
     assert abs(fit["parameters"]["mu"]["value"] - 0.25) < 1e-9
+
+
+def test_the_ellipse_data_file_is_what_its_script_makes(tmp_path):
+    """data/synthetic_ellipse_noise2pct.csv is reproducible from
+    data/make_synthetic.py (the predictions to 1e-12: they are the model's,
+    at the stated truth), and declares the script's body."""
+    import importlib.util
+    import pathlib
+
+    data = pathlib.Path(__file__).resolve().parent.parent / "data"
+    spec = importlib.util.spec_from_file_location("ms", data / "make_synthetic.py")
+    ms = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(ms)
+    made = di.load_experiments(ms.noisy_ellipse_impacts(tmp_path / "e.csv"))
+    kept = di.load_experiments(data / "synthetic_ellipse_noise2pct.csv")
+    assert made.declarations == kept.declarations and made.n == 200
+    for group in ("inputs", "outputs", "sigmas"):
+        for q, v in getattr(kept, group).items():
+            np.testing.assert_allclose(getattr(made, group)[q], v, rtol=1e-12)
+    body = di.Experiment.from_file(kept).scene
+    assert float(body.flat.yield_strength) == ms.ELLIPSE_TRUTH["yield_strength"]
