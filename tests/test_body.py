@@ -373,6 +373,37 @@ def test_a_spinning_rod_touches_first_where_the_grid_says():
     assert t > 0.005  # not a trivial first grid point
 
 
+@pytest.mark.parametrize("depth", [1e-5, 1e-7])
+def test_a_shallow_dip_between_any_samples_is_the_first_touch(depth):
+    """A capsule spinning at 300 rad/s from rest: its height is set so that
+    one of its ends first dips `depth` into the flat, for 190 us (1e-5) or
+    19 us (1e-7), in the middle of the flight, every earlier swing staying
+    above it.  The contact found is that dip's entry: the gap there is
+    zero and no earlier point of a 400,000-point grid is below the flat.
+    (The earlier search, on a grid of 256 intervals 0.5 ms apart here,
+    stepped over the 19 us dip to a touch 7 ms later.)"""
+    spin = S.PlanarBody(
+        0.05, 1e-5, S.Capsule(0.02, 0.005), BAR, FLAT,
+        angle=0.3, velocity_x=0.0, velocity_y=0.0, angular_velocity=300.0,
+        height=1.0,
+    )  # fmt: skip
+    ts = np.linspace(0.0, 0.2, 400_001)
+    fall = np.asarray(jax.vmap(spin.gap)(jnp.asarray(ts))) - 1.0  # gap - height
+    # the local minima (one per half turn) and the first that dips below
+    # every earlier one by far more than `depth`, half-way through
+    lows = np.nonzero((fall[1:-1] < fall[:-2]) & (fall[1:-1] < fall[2:]))[0] + 1
+    k = next(
+        i for i in lows
+        if ts[i] > 0.1 and fall[i] < fall[lows[lows < i]].min() - 1e-3
+    )  # fmt: skip
+    body = dataclasses.replace(spin, height=-fall[k] - depth)
+    t = float(body.flight_time())
+    assert abs(float(body.gap(t))) < 1e-12
+    assert ts[k] - 2e-4 < t < ts[k]  # that dip's entry, before its deepest
+    grid = jnp.asarray(np.linspace(0.0, t, 400_001)[:-1])
+    assert float(jnp.min(jax.vmap(body.gap)(grid))) > 0
+
+
 def test_flight_gradients_match_central_differences():
     """d(flight time)/d(height), and the spin after the impact w.r.t. the
     height through the flight (the rigid energetic law: closed form, so the
