@@ -71,6 +71,15 @@ def sphere_on_incline(p):
     return scene, di.Hertz(), di.Friction(p["mu"], p["mu_v"])
 
 
+def planar_body(p):
+    body, flat = _materials(p)
+    scene = di.scenes.PlanarBody(
+        p["mass"], p["inertia"], di.scenes.Disk(p["radius"]), body, flat,
+        angle=p["angle"], velocity_x=0.1, velocity_y=p["velocity_y"],
+    )  # fmt: skip
+    return scene, di.Hertz(), di.Friction(0.2)
+
+
 CASES = {
     # name: (builder, defaults, method, [(field, bad value, message part)])
     "NormalImpact": (
@@ -131,6 +140,22 @@ CASES = {
             ("mu", -0.1, "Friction.mu"),
             ("mu", math.nan, "Friction.mu"),
             ("mu_v", -1.0, "Friction.mu_v"),
+        ],
+    ),
+    # A part's own field is named, not a check of the whole that depends on
+    # it: under grad a negative mass was reported as an inertia too large
+    # for the body, and under jit a negative radius as a centre of mass
+    # outside the shape.
+    "PlanarBody": (
+        planar_body,
+        _defaults(mass=M, inertia=0.4 * M * R**2, radius=R, angle=0.3, velocity_y=-1.0),
+        "smooth",
+        [
+            ("mass", -M, "PlanarBody.mass"),
+            ("radius", -R, "Disk.radius"),
+            ("angle", math.nan, "PlanarBody.angle"),
+            ("inertia", M, "PlanarBody.inertia"),
+            ("velocity_y", 1.0, "PlanarBody.velocity_y"),
         ],
     ),
 }

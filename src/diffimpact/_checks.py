@@ -113,16 +113,28 @@ def nonnegative(x, name: str, unit: str = "") -> Check:
 
 
 def raise_failed(checks: Iterable[Check]) -> None:
-    """Raise ``ValueError`` for the first concrete check that fails (traced
-    checks are skipped: `guard` handles them)."""
+    """Raise ``ValueError`` for the first check that fails whose outcome is
+    concrete (traced ones are skipped: `guard` handles them).  The outcome
+    decides, not the value: under ``jax.grad`` a comparison of a
+    differentiated value is concrete (booleans carry no tangent), and
+    skipping it would let a later check on a dependent field (the inertia,
+    for a negative mass) speak first."""
     for c in checks:
-        if _is_traced(c.ok) or _is_traced(c.value):
+        if _is_traced(c.ok):
             continue
         if not bool(np.all(np.asarray(c.ok))):
-            raise ValueError(f"{c.message} (got {_show(c.value)})")
+            shown = _show(c.value)
+            raise ValueError(c.message + (f" (got {shown})" if shown else ""))
 
 
 def _show(value) -> str:
+    """The value for a message; "" when it is traced with no concrete value
+    at hand."""
+    while _is_traced(value):
+        # a differentiated value carries its concrete primal
+        value = getattr(value, "primal", None)
+        if value is None:
+            return ""
     a = np.asarray(value)
     if a.ndim == 0:
         return repr(a.item())
@@ -174,12 +186,14 @@ def _module_fields(cls) -> tuple:
 
 
 def collect_checks(tree) -> list[Check]:
-    """Every check of every `AbstractValidated` module inside ``tree``."""
+    """Every check of every `AbstractValidated` module inside ``tree``, each
+    module's parts before the module itself: the order in which they are
+    built, and so checked eagerly.  A whole's checks may depend on its parts
+    (a body's centre of mass inside its shape), and a bad part (a disk of
+    negative radius) must be named, not that symptom."""
     out: list[Check] = []
 
     def visit(node):
-        if isinstance(node, AbstractValidated):
-            out.extend(node._checks())
         children = jax.tree.leaves(
             node,
             is_leaf=lambda x: x is not node and isinstance(x, AbstractValidated),
@@ -187,6 +201,8 @@ def collect_checks(tree) -> list[Check]:
         for child in children:
             if isinstance(child, AbstractValidated):
                 visit(child)
+        if isinstance(node, AbstractValidated):
+            out.extend(node._checks())
 
     visit(tree)
     return out
