@@ -166,3 +166,28 @@ def test_a_bad_row_stops_the_holdout_whichever_side_it_falls(tmp_path, capsys, s
     err = capsys.readouterr().err
     assert "line 2: outside model" in err
     assert ("held-out" in err) == (seed == 1)
+
+
+def test_small_cli_mistakes_are_named(tmp_path, capsys):
+    """An empty --out, a header column without a name, an unclosed quote;
+    and an earlier run's files of another kind are removed with --force
+    (else named), not left beside the new ones as if they were theirs."""
+    data = _data(tmp_path)
+    argv = ["fit", str(data), "--free", "yield_strength", "--no-progress"]
+    assert main(argv + ["--out", ""]) == 2
+    assert "--out is empty" in capsys.readouterr().err
+    bad = tmp_path / "bad.csv"
+    bad.write_text("scene,,cor_normal\nnormal_impact,1,0.5\n")
+    assert main(["fit", str(bad), "--free", "mu"]) == 2
+    assert "line 1: column(s) [2] of the header have no name" in capsys.readouterr().err
+    bad.write_text('impact_velocity_m_s,cor_normal\n"1,0.5\n2,0.4\n')
+    assert main(["fit", str(bad), "--free", "mu"]) == 2
+    assert "runs on to line 3: is a quote" in capsys.readouterr().err
+    out = tmp_path / "o"
+    out.mkdir()
+    (out / "holdout.csv").write_text("old")
+    assert main(argv + ["--out", str(out)]) == 0
+    assert "holdout.csv in" in capsys.readouterr().out
+    assert main(argv + ["--out", str(out), "--force"]) == 0
+    assert "removed holdout.csv" in capsys.readouterr().out
+    assert not (out / "holdout.csv").exists() and (out / "fit.json").exists()

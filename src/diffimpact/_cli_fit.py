@@ -170,6 +170,8 @@ def _number(text, what):
 
 
 def run(args) -> int:
+    if args.out is not None and not args.out.strip():
+        raise ValueError("--out is empty: give a folder (or leave --out out)")
     out = args.out or "fit-" + os.path.splitext(os.path.basename(args.data))[0]
     if os.path.exists(out) and not os.path.isdir(out):
         raise ValueError(
@@ -300,6 +302,20 @@ def _fit_and_write(args, out) -> int:
         _posterior(args, data, experiment, free, start, bounds, out, result)
     files = _files(args)
     print(f"wrote {out}/: {', '.join(files)}" + (f" ({note})" if note else ""))
+    # --force: an earlier run's files of another kind (holdout.csv of a run
+    # with --holdout, say) would sit beside these as if they belonged to them
+    every = _OUTPUT_FILES + _HOLDOUT_FILES + _POSTERIOR_FILES
+    stale = [
+        f for f in every if f not in files and os.path.isfile(os.path.join(out, f))
+    ]
+    if stale and args.force:
+        for f in stale:
+            os.remove(os.path.join(out, f))
+        print(f"removed {', '.join(stale)}: an earlier run's, not this one's (--force)")
+    elif stale:
+        print(
+            f"note: {', '.join(stale)} in {out}/ are an earlier run's, not this one's"
+        )
     return 0
 
 

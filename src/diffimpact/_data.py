@@ -268,13 +268,20 @@ def load_experiments(path: str | os.PathLike) -> ExperimentData:
             )
     # Rows by the file line they start on (a quoted field may span lines);
     # a line starting with '#' among the rows is a commented-out row, skipped.
-    rows, consumed = [], reader.line_num
+    rows, consumed, ends = [], reader.line_num, {}
     for r in reader:
         first, consumed = body_start + consumed + 1, reader.line_num
+        ends[first] = body_start + consumed  # the line the row ends on
         if any(r) and not r[0].lstrip().startswith("#"):
             rows.append((first, r))
     if not rows:
         raise DataError(f"{path}: header but no rows of data")
+    unnamed = [j + 1 for j, h in enumerate(header) if not h]
+    if unnamed:
+        raise DataError(
+            f"{path}, line {body_start + 1}: column(s) {unnamed} of the header have "
+            "no name (a stray or trailing comma?); every column needs a name"
+        )
     if len(set(header)) != len(header):
         raise DataError(f"{path}: duplicate column names in {header}")
     columns, scene_idx = {}, None
@@ -314,9 +321,19 @@ def load_experiments(path: str | os.PathLike) -> ExperimentData:
     values = {j: [] for j in columns}
     for lineno, row in rows:
         if len(row) != len(header):
+            # a row read across lines with too few fields: a quote left open
+            # (a quoted field may span lines, but then the count holds)
+            last = ends[lineno]
+            runs_on = (
+                f"; it runs on to line {last}: is a quote (\") left open?"
+                if last > lineno
+                else "; a quote (\") is left open"
+                if lines[lineno - 1].count('"') % 2
+                else ""
+            )
             raise DataError(
                 f"{path}, line {lineno}: {len(row)} fields, expected {len(header)} "
-                f"({', '.join(header)})"
+                f"({', '.join(header)}){runs_on}"
             )
         if scene_idx is not None:
             s = row[scene_idx].strip()
