@@ -154,7 +154,10 @@ def test_row_numbering_is_the_file_line(tmp_path):
     )
     d2 = di.load_experiments(_write(tmp_path, "commented.csv", text.encode()))
     assert list(d2.lines) == [2, 4] and d2.scene == "sphere_on_incline"
-    with pytest.raises(ValueError, match=r"line 6: `SphereOnIncline.angle`"):
+    # the scene's check speaks SI (radians); the row as the file writes it
+    # follows, so that 95 degrees is recognisable
+    match = r"line 6: `SphereOnIncline.angle`.*; the row gives drop_height_m = 0.3, "
+    with pytest.raises(ValueError, match=match + "angle_deg = 95$"):
         di.fit(d, free="mu")
 
 

@@ -325,9 +325,9 @@ def load_experiments(path: str | os.PathLike) -> ExperimentData:
             # (a quoted field may span lines, but then the count holds)
             last = ends[lineno]
             runs_on = (
-                f"; it runs on to line {last}: is a quote (\") left open?"
+                f'; it runs on to line {last}: is a quote (") left open?'
                 if last > lineno
-                else "; a quote (\") is left open"
+                else '; a quote (") is left open'
                 if lines[lineno - 1].count('"') % 2
                 else ""
             )

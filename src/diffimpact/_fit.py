@@ -491,7 +491,9 @@ def resolve(data, experiment, free):
             f"{data.path} holds {data.scene!r} impacts, but the experiment's scene "
             f"is {spec.name!r}"
         )
-    check_rows(experiment, data.inputs, data.path, data.lines, data.checks)
+    check_rows(
+        experiment, data.inputs, data.path, data.lines, data.checks, data.columns
+    )
     return data, experiment, free
 
 

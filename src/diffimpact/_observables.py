@@ -442,12 +442,20 @@ def with_inputs(experiment: Experiment, inputs: dict) -> Experiment:
 
 
 def check_rows(
-    experiment: Experiment, inputs: dict, path: str = "data", lines=None, checks=None
+    experiment: Experiment,
+    inputs: dict,
+    path: str = "data",
+    lines=None,
+    checks=None,
+    columns=None,
 ) -> None:
     """Validate every row's scene eagerly (before any solve) with the scene's own
     checks; raise a ValueError naming the row and the scene's message.
     ``checks``: a file's check columns (`ExperimentData.checks`), compared with
-    the model row by row (`check_jacobian_rows`)."""
+    the model row by row (`check_jacobian_rows`).  ``columns`` (the file's
+    `ExperimentData.columns`): the message also gives the row's inputs as
+    the file writes them (the scene's checks speak SI: radians for a column
+    in degrees)."""
     spec = scene_spec(experiment.scene)
     unknown = [q for q in inputs if q not in spec.inputs]
     if unknown:
@@ -468,7 +476,9 @@ def check_rows(
         try:
             return dataclasses.replace(experiment.scene, **fields)
         except ValueError as err:
-            raise ValueError(f"{path}, {row_label(lines, i)}: {err}") from None
+            raise ValueError(
+                f"{path}, {row_label(lines, i)}: {err}{_as_written(columns, inputs, i)}"
+            ) from None
 
     if checks:
         scenes = [row_scene(i) for i in range(n)]
@@ -483,6 +493,21 @@ def check_rows(
         suspects = _failing_rows(experiment, inputs)
     for i in range(n) if suspects is None else suspects:
         row_scene(i)
+
+
+def _as_written(columns, inputs: dict, i: int) -> str:
+    """``; the row gives angle_deg = 95, ...``: a row's inputs in the units of
+    the file's columns ("" without them, or where all are in SI already)."""
+    if not columns:
+        return ""
+    shown = [
+        (c.header, float(inputs[c.quantity][i]) / c.factor)
+        for c in columns.values()
+        if not c.is_sigma and c.quantity in inputs
+    ]
+    if all(columns[h].factor == 1.0 for h, _ in shown):
+        return ""
+    return "; the row gives " + ", ".join(f"{h} = {v:.6g}" for h, v in shown)
 
 
 # Up to this many rows, checking each eagerly is quicker than compiling.
