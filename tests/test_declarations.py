@@ -1,6 +1,7 @@
 """A planar-body file declares its body above the header: read, checked,
 built (`Experiment.from_file`), and fitted from the command line."""
 
+import dataclasses
 import json
 
 import numpy as np
@@ -196,3 +197,65 @@ def test_the_ellipse_data_file_is_what_its_script_makes(tmp_path):
             np.testing.assert_allclose(getattr(made, group)[q], v, rtol=1e-12)
     body = di.Experiment.from_file(kept).scene
     assert float(body.flat.yield_strength) == ms.ELLIPSE_TRUTH["yield_strength"]
+
+
+def test_what_a_review_found(tmp_path, capsys):
+    """A newcomer's review of declared bodies: each case named, none silent."""
+    path = tmp_path / "e.csv"
+    path.write_text(DECLARED + ROW + "20,0.1,-2,0.3\n")
+    body = di.Experiment.from_file(path).scene
+    # items the file leaves out are compared at their defaults
+    for field, value in (("com_y", 0.003), ("incline", 0.2), ("gravity", 0.0)):
+        other = di.Experiment(
+            dataclasses.replace(body, **{field: value}), di.Hertz(), di.Friction(0.3)
+        )
+        with pytest.raises(di.DataError, match=f"line 1 \\('body:'\\).*{field}"):
+            di.fit(path, other, "mu")
+    # a mass column beside a declared mass
+    both = tmp_path / "both.csv"
+    both.write_text(DECLARED + "mass_g," + ROW + "60,20,0.1,-2,0.3\n")
+    with pytest.raises(di.DataError, match="mass is declared, and column 'mass_g'"):
+        di.load_experiments(both)
+    # a bad first row is the row's, not the declarations'
+    row1 = tmp_path / "row1.csv"
+    row1.write_text(DECLARED + ROW + "20,0.1,1.5,0.3\n")
+    with pytest.raises(ValueError, match=r"line 6: `PlanarBody.velocity_y"):
+        di.fit(row1, None, "mu")
+    # a bad material names its own line
+    bad = tmp_path / "mat.csv"
+    bad.write_text(DECLARED.replace("205", "0") + ROW + "20,0.1,-2,0.3\n")
+    with pytest.raises(di.DataError, match=r"line 4 \('flat_material:'\): `Mat"):
+        di.Experiment.from_file(bad)
+    # a note in a file of another scene is a note; elsewhere the hint says so
+    note = tmp_path / "note.csv"
+    note.write_text(
+        "# Body: steel ball\nscene,impact_velocity_m_s,cor_normal\n"
+        "normal_impact,1,0.5\n"
+    )
+    assert di.load_experiments(note).declarations is None
+    note.write_text("# Body: steel ball\nimpact_velocity_m_s,cor_normal\n1,0.5\n")
+    with pytest.raises(di.DataError, match="if it is a note, reword it"):
+        di.load_experiments(note)
+    comma = tmp_path / "comma.csv"
+    comma.write_text(DECLARED.replace("mass_g=50", "mass_g=50,5") + ROW + "2,0,-2,0\n")
+    with pytest.raises(di.DataError, match="a decimal comma"):
+        di.load_experiments(comma)
+    # write_experiments: a body that is not a planar body's, a scene that
+    # is not planar_body, a note that would read as a declaration
+    cols = {"orientation_rad": [0.3], "velocity_x_m_s": [0.2], "velocity_y_m_s": [-2.0]}
+    cols["angular_velocity_rad_s"] = [1.0]
+    with pytest.raises(TypeError, match="must be a diffimpact.scenes.PlanarBody"):
+        di.write_experiments(
+            tmp_path / "w.csv", cols, body=di.Experiment(body, di.Hertz())
+        )
+    with pytest.raises(ValueError, match="scene='planar_body'"):
+        di.write_experiments(tmp_path / "w.csv", cols, body=body, scene="normal_impact")
+    with pytest.raises(ValueError, match="would be read as a body declaration"):
+        di.write_experiments(tmp_path / "w.csv", cols, body=body, provenance="Shape: x")
+    assert not (tmp_path / "w.csv").exists()
+    # the command line: --set of a declared quantity, --scene of another scene
+    argv = ["fit", str(path), "--free", "mu", "--out", str(tmp_path / "o")]
+    assert main(argv + ["--set", "com_y=0.004"]) == 2
+    assert "com_y" in capsys.readouterr().err
+    assert main(argv + ["--scene", "normal_impact"]) == 2
+    assert "leave --scene out" in capsys.readouterr().err

@@ -138,7 +138,8 @@ def _show(value) -> str:
     a = np.asarray(value)
     if a.ndim == 0:
         return repr(a.item())
-    return np.array2string(a, threshold=8)
+    # one line: a message is shown whole on one line (the command line's)
+    return " ".join(np.array2string(a, threshold=8).split())
 
 
 class AbstractValidated(eqx.Module):

@@ -429,13 +429,13 @@ def run_command(func, args) -> int:
     try:
         return func(args)
     except (ValueError, TypeError, FileExistsError) as err:  # bad input
-        print(f"error: {_message(err)}", file=sys.stderr)
+        print(f"error: {_message(err, args)}", file=sys.stderr)
         return 2
     except KeyboardInterrupt:
         print("interrupted", file=sys.stderr)
         return 130
     except Exception as err:  # a failed solve or fit: say what, not where
-        print(f"error: {_message(err)}", file=sys.stderr)
+        print(f"error: {_message(err, args)}", file=sys.stderr)
         return 1
 
 
@@ -469,9 +469,17 @@ def use_compilation_cache() -> str | None:
     return path
 
 
-def _message(err: BaseException) -> str:
+def _message(err: BaseException, args=None) -> str:
     """The user-facing line of an error: for a check that fired inside a
-    compiled solve, its message without JAX's traceback text around it."""
+    compiled solve, its message without JAX's traceback text around it; a
+    solve out of steps, with the flag that raises the budget."""
+    line = _first_line(err)
+    if "step budget" in line and hasattr(args, "solver_steps"):
+        line += "; on the command line: --solver-steps N (default 16384)"
+    return line
+
+
+def _first_line(err: BaseException) -> str:
     text = str(err)
     marker = "_EquinoxRuntimeError: "
     if marker in text:

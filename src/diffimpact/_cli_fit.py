@@ -223,7 +223,13 @@ def _fit_and_write(args, out) -> int:
     if scene is None:
         raise ValueError(f"{args.data}: no 'scene' column; pass --scene")
     spec = scene_spec(scene)
-    if declared and spec.cls is PlanarBody:  # the body the file declares
+    scene = spec.name  # as the registry spells it ('Planar-Body' is planar_body)
+    if declared and spec.cls is not PlanarBody:
+        raise ValueError(
+            f"--scene {args.scene}: {data.declarations.where(args.data)} declare "
+            "a planar body; leave --scene out (or give planar_body)"
+        )
+    if declared:  # the body the file declares
         experiment = di.Experiment.from_file(data)
     else:
         experiment = spec.default()

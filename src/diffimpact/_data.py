@@ -27,6 +27,7 @@ import os
 
 import numpy as np
 
+from ._declarations import KEYS as DECLARATION_KEYS
 from ._declarations import Declarations, format_declarations, read_declarations
 from ._units import (
     SI,
@@ -357,7 +358,15 @@ def load_experiments(path: str | os.PathLike) -> ExperimentData:
             {"input": inputs, "output": outputs, "check": checks}[role][
                 col.quantity
             ] = arr
-    declarations = read_declarations(preamble, path)
+    # A scene column naming another scene makes such lines notes; a file
+    # that declares a body cannot also give its mass row by row.
+    other = bool(scenes) and scenes != {"planar_body"}
+    declarations = None if other else read_declarations(preamble, path)
+    if declarations is not None and "mass" in inputs:
+        raise DataError(
+            f"{declarations.where(path, ('body',))}: the body's mass is declared, "
+            f"and column {seen[('mass', False)]!r} gives it row by row; keep one"
+        )
     if _clockwise(provenance, path):
         for q in _SIGNED_ANGLES:
             for group in (inputs, outputs, checks):
@@ -477,6 +486,28 @@ def write_experiments(
     """
     path = os.fspath(path)
     if body is not None:
+        if scene is not None and scene.strip().lower().replace("-", "_") != (
+            "planar_body"
+        ):
+            raise ValueError(
+                f"{path}: `scene` is {scene!r}, but a declared `body` is a planar "
+                "body's; give scene='planar_body' or none"
+            )
+        noted = [
+            line
+            for line in provenance.splitlines()
+            if line.partition(":")[0]
+            .strip()
+            .lower()
+            .replace(" ", "_")
+            .replace("-", "_")
+            in DECLARATION_KEYS
+        ]
+        if noted:
+            raise ValueError(
+                f"{path}: the provenance line {noted[0]!r} would be read as a "
+                "body declaration; reword it (e.g. with ' - ' for the colon)"
+            )
         provenance = "\n".join(filter(None, [provenance, format_declarations(body)]))
     if os.path.exists(path):
         raise FileExistsError(f"{path} exists; remove it first or choose another name")

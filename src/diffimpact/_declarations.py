@@ -78,10 +78,15 @@ class Declarations:
     flat_material: dict
     lines: dict
 
-    def where(self, path: str) -> str:
-        """``path, lines a, b, ...``: where the declarations are."""
-        lines = ", ".join(str(n) for n in sorted(self.lines.values()))
-        return f"{path}, lines {lines} (the body declarations)"
+    def where(self, path: str, keys=()) -> str:
+        """``path, line n ('key:')``: where the declarations of ``keys`` are
+        (all four when none is given)."""
+        keys = keys or tuple(self.lines)
+        at = sorted((self.lines[k], k) for k in keys)
+        if len(at) == 1:
+            return f"{path}, line {at[0][0]} ('{at[0][1]}:')"
+        named = ", ".join(f"{n} ('{k}:')" for n, k in at)
+        return f"{path}, lines {named}"
 
 
 def _key(text: str) -> str:
@@ -106,11 +111,18 @@ def read_declarations(preamble, path: str) -> Declarations | None:
                 "each declaration once"
             )
         items = [i.strip() for i in value.split(",")]
-        if key == "shape":
-            found[key] = _shape(items, where)
-        else:
-            quantities, required = _KEYS[key]
-            found[key] = _items(items, quantities, required, where)
+        try:
+            if key == "shape":
+                found[key] = _shape(items, where)
+            else:
+                quantities, required = _KEYS[key]
+                found[key] = _items(items, quantities, required, where)
+        except DataError as err:
+            raise DataError(
+                f"{err} (a '#' line above the header that starts with "
+                f"'{text.partition(':')[0].strip()}:' declares a planar body; if "
+                "it is a note, reword it, e.g. with ' - ' for the colon)"
+            ) from None
         lines[key] = lineno
     if not found:
         return None
@@ -162,12 +174,26 @@ def _shape(items, where: str) -> tuple:
 
 def _split(item: str, where: str, quantities: dict) -> tuple[str, str]:
     name, sep, value = item.partition("=")
+    if not sep and _is_number(item):
+        raise DataError(
+            f"{where}: {item!r} is not an item '<quantity>_<unit>=<number>': a "
+            "decimal comma? numbers take a point (50.5), items are separated by "
+            "commas"
+        )
     if not sep or not name.strip():
         raise DataError(
             f"{where}: {item!r} is not an item '<quantity>_<unit>=<number>'; "
             f"expected items of {', '.join(_form(q, quantities) for q in quantities)}"
         )
     return name.strip(), value.strip()
+
+
+def _is_number(text: str) -> bool:
+    try:
+        parse_number(text)
+    except ValueError:
+        return False
+    return True
 
 
 def _form(quantity: str, quantities: dict) -> str:
@@ -260,6 +286,11 @@ def _item(quantity: str, dim: str, value) -> str:
 def format_declarations(scene) -> str:
     """The declaration lines (without ``#``) of a `PlanarBody` ``scene``: the
     provenance that `write_experiments(..., body=scene)` writes."""
+    if not all(hasattr(scene, f) for f in ("shape", "mass", "inertia", "body", "flat")):
+        raise TypeError(
+            f"`body` must be a diffimpact.scenes.PlanarBody, got "
+            f"{type(scene).__name__} (an experiment's body is `experiment.scene`)"
+        )
     shape = scene.shape
     kind = {
         "Disk": "disk",

@@ -10,6 +10,9 @@ from ._units import DataError
 from .scenes._body import PlanarBody
 from .scenes._shapes import Capsule, Disk, Ellipse, RoundedPolygon
 
+# The body's defaults (`PlanarBody`) of the items a declaration may omit.
+_BODY_DEFAULTS = {"com_x": 0.0, "com_y": 0.0, "incline": 0.0, "gravity": 9.81}
+
 _SHAPE_TYPES = {
     "disk": Disk,
     "ellipse": Ellipse,
@@ -28,30 +31,51 @@ _STATE = {
 
 def declared_body(declarations: Declarations, inputs: dict, path: str) -> PlanarBody:
     """The declared body, in the state of the file's first row (every row
-    replaces it by its own and is checked on its own before any fit).  The
-    body's checks (the centre of mass inside the shape, an inertia the mass
-    and shape can have, a convex polygon) name the declarations' lines."""
-    where = declarations.where(path)
+    replaces it by its own and is checked on its own before any fit).  A
+    problem of the declarations is named by its line: a shape that is not
+    convex, a material out of its domain, a centre of mass outside the
+    shape or an inertia the mass and shape cannot have (the ``body:`` and
+    ``shape:`` lines).  A first row the body cannot start from is left to
+    the rows' own check, which names that row."""
     kind, dims = declarations.shape
+    shape = _built(lambda: _SHAPE_TYPES[kind](**dims), declarations, path, "shape")
+    body = _built(
+        lambda: Material(**declarations.body_material), declarations, path,
+        "body_material",
+    )  # fmt: skip
+    flat = _built(
+        lambda: Material(**declarations.flat_material), declarations, path,
+        "flat_material",
+    )  # fmt: skip
+    parts = dict(shape=shape, body=body, flat=flat, **declarations.body)
+    first = {
+        field: float(inputs[q][0]) if q in inputs else default
+        for q, (field, default) in _STATE.items()
+    }
+    if "height" in inputs:
+        first["height"] = float(inputs["height"][0])
     try:
-        shape = _SHAPE_TYPES[kind](**dims)
-        body = Material(**declarations.body_material)
-        flat = Material(**declarations.flat_material)
-        state = {
-            field: float(inputs[q][0]) if q in inputs else default
-            for q, (field, default) in _STATE.items()
-        }
-        height = inputs.get("height")
-        return PlanarBody(
-            shape=shape,
-            body=body,
-            flat=flat,
-            height=None if height is None else float(height[0]),
-            **declarations.body,
-            **state,
-        )
+        return PlanarBody(**parts, **first)
+    except ValueError:
+        pass
+    # the body at a plain state: what fails there is the declarations'
+    return _built(
+        lambda: PlanarBody(**parts, **_PLAIN), declarations, path, "body", "shape"
+    )
+
+
+# A state any convex body can start from: falling, with no flat side of a
+# polygon or capsule facing the flat (0.1234 rad is no multiple of any
+# regular polygon's symmetry).
+_PLAIN = {"angle": 0.1234, "velocity_x": 0.0, "velocity_y": -1.0}
+
+
+def _built(make, declarations: Declarations, path: str, *keys):
+    """``make()``, or a `DataError` naming the lines of ``keys``."""
+    try:
+        return make()
     except ValueError as err:
-        raise DataError(f"{where}: {err}") from None
+        raise DataError(f"{declarations.where(path, keys)}: {err}") from None
 
 
 def check_declared(declarations: Declarations, scene, path: str) -> None:
@@ -67,10 +91,13 @@ def check_declared(declarations: Declarations, scene, path: str) -> None:
     kind, dims = declarations.shape
     if type(scene.shape) is not _SHAPE_TYPES[kind]:
         raise DataError(
-            f"{declarations.where(path)}: the file declares a {kind} shape, but "
+            f"{declarations.where(path)}: the file declares {_article(kind)} "
+            f"{kind.replace('_', ' ')} shape, but "
             f"the experiment's body is a {type(scene.shape).__name__}"
         )
-    pairs = [(q, getattr(scene, q), v) for q, v in declarations.body.items()]
+    # an item the file leaves out is its default, and is compared as such
+    body = {**_BODY_DEFAULTS, **declarations.body}
+    pairs = [(q, getattr(scene, q), v) for q, v in body.items()]
     for q, v in dims.items():
         given = getattr(scene.shape, q)
         if q == "vertices":
@@ -94,8 +121,15 @@ def check_declared(declarations: Declarations, scene, path: str) -> None:
         length = name.startswith(("shape.", "com_"))
         atol = 1e-9 * size if length else 1e-12 if name == "incline" else 0.0
         if not math.isclose(given, declared, rel_tol=1e-9, abs_tol=atol):
+            key = "shape" if name.startswith("shape.") else "body"
             raise DataError(
-                f"{declarations.where(path)}: the file declares {name} = "
-                f"{declared!r} (SI), the experiment's body has {given!r}; use "
-                "Experiment.from_file, or give the body the file declares"
+                f"{declarations.where(path, (key,))}: the file declares {name} = "
+                f"{declared!r} (SI), the experiment's body has {given!r}; the "
+                "body is the file's (change its declaration, or fit the "
+                "quantity with --free / `free`; a --set or a Python body that "
+                "differs is refused)"
             )
+
+
+def _article(word: str) -> str:
+    return "an" if word[0] in "aeiou" else "a"
