@@ -194,3 +194,15 @@ def test_bad_input_is_named():
         di.rigid_impact(normal, 0.2, 0.8)
     with pytest.raises(TypeError, match="need a planar scene"):
         di.predict(di.Experiment(normal, di.RigidContact(0.5)), {})
+
+
+def test_a_rigid_experiments_unknown_name_offers_what_it_takes():
+    """A rigid law takes Coulomb friction only: its list of names leaves out
+    the viscous mu_v (which it would refuse)."""
+    from diffimpact._observables import resolve_parameter
+
+    bar = di.Experiment.default("free_bar").scene
+    rigid = di.Experiment(bar, di.RigidContact(0.5, "newton"), di.Friction(0.2))
+    with pytest.raises(ValueError, match="unknown parameter") as err:
+        resolve_parameter(rigid, "nonsense")
+    assert "'mu'" in str(err.value) and "mu_v" not in str(err.value)

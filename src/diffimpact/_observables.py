@@ -313,7 +313,10 @@ def resolve_parameter(experiment: Experiment, name: str) -> str:
     # the modules' converters); `with_parameters` makes it an array
     number = isinstance(value, int | float) and not isinstance(value, bool)
     if value is None or not (eqx.is_inexact_array(value) or number):
-        known = sorted(spec.parameters) + sorted(_array_fields(experiment.law))
+        names = spec.parameters
+        if isinstance(experiment.law, RigidContact):  # Coulomb friction only
+            names = {k: v for k, v in names.items() if k != "mu_v"}
+        known = sorted(names) + sorted(_array_fields(experiment.law))
         extra = (
             " (the experiment has no friction)" if path.startswith("friction") else ""
         )
