@@ -79,13 +79,7 @@ class Experiment(eqx.Module):
         **Arguments:** `data`: a path or an `ExperimentData`."""
         if not isinstance(data, ExperimentData):
             data = load_experiments(data)
-        if data.declarations is not None:
-            if data.scene is not None and scene_spec(data.scene).cls is not PlanarBody:
-                raise DataError(
-                    f"{data.declarations.where(data.path)}: the file declares a "
-                    f"planar body, but its scene column says {data.scene!r}; "
-                    "write 'planar_body' (or leave the column out)"
-                )
+        if data.declarations is not None:  # (none in a file of another scene)
             scene = declared_body(data.declarations, data.inputs, data.path)
             return Experiment(scene, JacksonGreen(), Friction(0.2))
         if data.scene is None:
