@@ -155,7 +155,8 @@ CASES = {
             ("radius", -R, "Disk.radius"),
             ("angle", math.nan, "PlanarBody.angle"),
             ("inertia", M, "PlanarBody.inertia"),
-            ("velocity_y", 1.0, "PlanarBody.velocity_y"),
+            ("velocity_y", 1.0, "PlanarBody.velocity_y` and `angular_velocity"),
+            ("velocity_y", math.nan, "`PlanarBody.velocity_y` must be finite"),
         ],
     ),
 }

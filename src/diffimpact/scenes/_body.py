@@ -152,6 +152,7 @@ class PlanarBody(AbstractPlanarScene):
                     "point-contact model); give the angle at which one end or "
                     "corner touches first",
                 ),
+                finite(self.velocity_y, "PlanarBody.velocity_y"),
                 check(
                     self.velocity_y,
                     jnp.isfinite(self.velocity_y) & (self._approach_speed() > 0),
