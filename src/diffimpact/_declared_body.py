@@ -54,10 +54,9 @@ def declared_body(declarations: Declarations, inputs: dict, path: str) -> Planar
     }
     if "height" in inputs:
         first["height"] = float(inputs["height"][0])
-    try:
-        return PlanarBody(**parts, **first)
-    except ValueError:
-        pass
+    at_first = _or_none(lambda: PlanarBody(**parts, **first))
+    if at_first is not None:
+        return at_first
     # the body at a plain state: what fails there is the declarations'
     return _built(
         lambda: PlanarBody(**parts, **_PLAIN), declarations, path, "body", "shape"
@@ -68,6 +67,15 @@ def declared_body(declarations: Declarations, inputs: dict, path: str) -> Planar
 # polygon or capsule facing the flat (0.1234 rad is no multiple of any
 # regular polygon's symmetry).
 _PLAIN = {"angle": 0.1234, "velocity_x": 0.0, "velocity_y": -1.0}
+
+
+def _or_none(make):
+    """``make()``, or None where its checks refuse it (a first row the body
+    cannot start from: the rows' own check names that row)."""
+    try:
+        return make()
+    except ValueError:
+        return None
 
 
 def _built(make, declarations: Declarations, path: str, *keys):
