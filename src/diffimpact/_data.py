@@ -27,8 +27,12 @@ import os
 
 import numpy as np
 
-from ._declarations import KEYS as DECLARATION_KEYS
-from ._declarations import Declarations, format_declarations, read_declarations
+from ._declarations import (
+    Declarations,
+    declaration_key,
+    format_declarations,
+    read_declarations,
+)
 from ._units import (
     SI,
     UNITS,
@@ -493,16 +497,7 @@ def write_experiments(
                 f"{path}: `scene` is {scene!r}, but a declared `body` is a planar "
                 "body's; give scene='planar_body' or none"
             )
-        noted = [
-            line
-            for line in provenance.splitlines()
-            if line.partition(":")[0]
-            .strip()
-            .lower()
-            .replace(" ", "_")
-            .replace("-", "_")
-            in DECLARATION_KEYS
-        ]
+        noted = [line for line in provenance.splitlines() if declaration_key(line)]
         if noted:
             raise ValueError(
                 f"{path}: the provenance line {noted[0]!r} would be read as a "

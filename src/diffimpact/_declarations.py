@@ -93,6 +93,14 @@ def _key(text: str) -> str:
     return text.strip().lower().replace(" ", "_").replace("-", "_")
 
 
+def declaration_key(line: str) -> str | None:
+    """The declaration a provenance line (without ``#``) starts, as its key
+    (``"body"``, ``"shape"``, ...), or None for a line that is a note."""
+    key, sep, _ = line.partition(":")
+    key = _key(key)
+    return key if sep and key in KEYS else None
+
+
 def read_declarations(preamble, path: str) -> Declarations | None:
     """The declarations among ``preamble`` (pairs ``(line number, text)`` of
     the ``#`` lines above the header, without the ``#``); None when the file
@@ -100,10 +108,10 @@ def read_declarations(preamble, path: str) -> Declarations | None:
     all of it: ``body``, ``shape``, ``body_material`` and ``flat_material``."""
     found, lines = {}, {}
     for lineno, text in preamble:
-        key, sep, value = text.partition(":")
-        key = _key(key)
-        if not sep or key not in KEYS:
+        key = declaration_key(text)
+        if key is None:
             continue
+        value = text.partition(":")[2]
         where = f"{path}, line {lineno} ('{key}:')"
         if key in found:
             raise DataError(
