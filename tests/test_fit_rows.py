@@ -106,6 +106,40 @@ def test_one_flagged_row_is_differenced_alone(noisy, monkeypatch):
     np.testing.assert_array_equal(got, want)
 
 
+def test_an_update_recomputes_the_rows_that_left_the_linear_model(noisy):
+    """`RowBlocks.update` at a point near the base: residuals identical to a
+    full evaluation there; the Jacobian recomputed (to forward mode's own
+    value at the new point) exactly for the rows whose residuals departed from
+    the base's linear model by more than `_REFRESH` times the median row,
+    the base's for the others.  One row is made to depart (its base residual
+    shifted by 1, far above the others' curvature over the step, ~1e-3); with
+    more than a quarter of the rows departing, the full evaluation."""
+    data, problem, u0 = _problem(*noisy, 4)
+    blocks = _lsq.RowBlocks(problem, np.arange(data.n), 3)
+    u1 = u0 + 0.02
+    try:
+        base, exact = blocks.evaluate(u0), blocks.evaluate(u1)
+        k = np.asarray(problem.mask).shape[1]
+        shifted = np.array(base.residual)
+        shifted[5 * k] += 1.0
+        moved = _lsq._Evaluated(shifted, base.jacobian, base.differenced)
+        got = blocks.update(u1, u0, moved, (1.0, 1.0))  # no secant step
+        many = np.array(base.residual)
+        many[: 10 * k] += 1.0  # 10 of the 24 rows
+        everything = _lsq._Evaluated(many, base.jacobian, base.differenced)
+        full = blocks.update(u1, u0, everything, (1.0, 1.0))
+    finally:
+        blocks.close()
+    np.testing.assert_allclose(got.residual, exact.residual, rtol=0, atol=1e-15)
+    jac, want, old = (np.array(x.jacobian) for x in (got, exact, base))
+    row = slice(5 * k, 6 * k)
+    np.testing.assert_allclose(jac[row], want[row], rtol=1e-12)
+    assert np.max(np.abs(old[row] / want[row] - 1)) > 1e-3  # it did change
+    jac[row] = old[row]
+    np.testing.assert_array_equal(jac, old)
+    np.testing.assert_array_equal(full.jacobian, exact.jacobian)
+
+
 def test_diverged_rows_are_those_far_above_the_median():
     """Per parameter: a row flagged when its derivatives w.r.t. one
     parameter exceed 10 times the median row's, whatever the other column."""

@@ -430,6 +430,7 @@ def _fit_least_squares(
                 u, more, converged, final, rose = least_squares(
                     blocks, u, "gauss-newton", max(max_steps - done, 1), rtol,
                     atol, bar, first=done, stop_if_rising=True,
+                    update_jacobian=True,
                 )  # fmt: skip
             if not warm_converged or rose:
                 u, extra, converged, final2, _ = least_squares(

@@ -119,9 +119,16 @@ class _Problem(eqx.Module):
 
     def residuals(self, u):
         pred, codes, _ = self.predictions(u)
-        ok = (codes == RESULTS.successful._value)[:, None]
-        r = jnp.where(self.mask, (pred - self.measured) / self.sigma, 0.0)
-        return jnp.where(ok, r, jnp.where(self.mask, _FAILED_RESIDUAL, 0.0)).ravel()
+        return weighted(pred, codes, self.measured, self.sigma, self.mask).ravel()
+
+
+def weighted(pred, codes, measured, sigma, mask):
+    """``(predicted - measured) / sigma`` where measured (`mask`), 0 elsewhere,
+    and `_FAILED_RESIDUAL` for the measured quantities of a failed row; ``(n,
+    k)``, from `predictions`' outputs (traced arrays or NumPy's)."""
+    ok = (codes == RESULTS.successful._value)[:, None]
+    r = jnp.where(mask, (pred - measured) / sigma, 0.0)
+    return jnp.where(ok, r, jnp.where(mask, _FAILED_RESIDUAL, 0.0))
 
 
 # Differentiated through a diffrax while loop, `jax.linearize` cannot separate
