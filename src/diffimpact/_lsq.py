@@ -272,9 +272,8 @@ class RowBlocks:
         contracting)."""
         pred, codes, _ = self.predictions(u)
         p = self.problem
-        r = np.asarray(
-            weighted(pred, codes, np.asarray(p.measured), np.asarray(p.sigma), self.mask)
-        )
+        measured, sigma = np.asarray(p.measured), np.asarray(p.sigma)
+        r = np.asarray(weighted(pred, codes, measured, sigma, self.mask))
         if np.any(r[self.mask] == _FAILED_RESIDUAL):
             return self.evaluate(u)
         du = np.asarray(u, float) - np.asarray(base_u, float)
