@@ -20,6 +20,7 @@ instead of a confident wrong answer.
 
 from __future__ import annotations
 
+import concurrent.futures
 import contextlib
 import dataclasses
 import math
@@ -36,7 +37,7 @@ import optax
 
 from ._data import ExperimentData, load_experiments
 from ._declared_body import check_declared
-from ._lsq import RowBlocks, least_squares, workers
+from ._lsq import _WARM_DIVERGED, RowBlocks, least_squares, workers
 from ._observables import (
     Experiment,
     check_rows,
@@ -386,6 +387,7 @@ def _fit_least_squares(
         )
     n_blocks = workers() if problem.chunk_size is not None else 1
     blocks = RowBlocks(problem, np.arange(n), n_blocks)
+    compiling = blocks.compile_jacobian(jnp.asarray(u0))
     try:
         start = blocks.predictions(u0)
         _check_predictions(problem, u0, data, "at the start values", start)
@@ -402,17 +404,21 @@ def _fit_least_squares(
         order = np.concatenate([by_cost(picked), by_cost(rest)])
         blocks.close()
         blocks = RowBlocks(problem, order, n_blocks)
+        # (its failure, if any, is raised by the first evaluation itself)
+        concurrent.futures.wait([compiling])
         with _derivatives_named(problem.experiment.settings):
             u, done, warm_info = jnp.asarray(u0), 0, None
             warm_converged = rose = False
             if chosen.any():
-                warm = RowBlocks(problem, order, n_blocks, fitted=chosen)
+                warm = RowBlocks(
+                    problem, order, n_blocks, fitted=chosen, diverged=_WARM_DIVERGED
+                )
                 try:
                     if bar:
                         bar.label = f"{solver}, {k} rows"
                     u, done, warm_converged, _, _ = least_squares(
                         warm, u, solver, max_steps, max(rtol, _WARM_TOL),
-                        max(atol, _WARM_TOL), bar,
+                        max(atol, _WARM_TOL), bar, update_jacobian=True,
                     )  # fmt: skip
                 finally:
                     warm.close()

@@ -53,6 +53,12 @@ _STALL = 4
 # measured on planar impacts, the two agree to 1e-7 where the forward mode is
 # right).
 _DIVERGED, _FD_STEP = 10.0, 1e-4
+# ... in a warm start, whose Jacobians only steer it towards the optimum of all
+# rows (whose Jacobian is recomputed there): a wider limit, which still catches
+# the divergences seen (1,600 times and 1e45), and spares the central
+# differences of the rows whose derivatives only spread wider far from the
+# optimum (78 of 256 planar impacts at mu = 0.4: 5 s).
+_WARM_DIVERGED = 100.0
 # `RowBlocks.update`: a row whose residuals depart from the last Jacobian's
 # linear model by more than this many times the median row's gets its
 # Jacobian recomputed (the bulk's departure is the smooth curvature of the
@@ -78,7 +84,7 @@ class _Evaluated(eqx.Module):
     differenced: jax.Array
 
 
-def _diverged_rows(jac, mask):
+def _diverged_rows(jac, mask, limit=None):
     """Rows whose forward sensitivities may have diverged: a Jacobian entry
     that is not finite, or a column (the derivatives w.r.t. one parameter)
     whose largest entry is above `_DIVERGED` times the median of that over the
@@ -106,7 +112,8 @@ def _diverged_rows(jac, mask):
     else:
         scale = np.zeros(largest.shape[1])
     ratio = largest / np.maximum(scale, 1e-300)
-    bad = ~np.all(np.isfinite(largest), axis=1) | np.any(ratio > _DIVERGED, axis=1)
+    limit = _DIVERGED if limit is None else limit
+    bad = ~np.all(np.isfinite(largest), axis=1) | np.any(ratio > limit, axis=1)
     return np.nonzero(bad & fitted)[0]
 
 
@@ -150,9 +157,12 @@ def workers() -> int:
 class RowBlocks:
     """A residual problem split into blocks of rows of equal length, one per
     thread.  `rows[b]`: the file rows of block ``b`` in solving order (padded
-    with a repeat of its first row, not fitted); `blocks[b]`: its problem."""
+    with a repeat of its first row, not fitted); `blocks[b]`: its problem.
+    `diverged`: the `_diverged_rows` limit (None: `_DIVERGED`)."""
 
-    def __init__(self, problem: _Problem, order, n_blocks: int, fitted=None):
+    def __init__(
+        self, problem: _Problem, order, n_blocks: int, fitted=None, diverged=None
+    ):
         n = problem.mask.shape[0]
         order = np.asarray(order)
         if len(order) != n or not np.array_equal(np.sort(order), np.arange(n)):
@@ -160,7 +170,7 @@ class RowBlocks:
         n_blocks = max(1, min(n_blocks, n))
         parts = [order[b::n_blocks] for b in range(n_blocks)]
         length = max(len(p) for p in parts)
-        self.problem, self.order = problem, order
+        self.problem, self.order, self.diverged = problem, order, diverged
         self.n, self.rows, self.real, self.blocks = n, [], [], []
         mask = np.asarray(problem.mask)
         if fitted is not None:
@@ -222,6 +232,23 @@ class RowBlocks:
             gathered.append(tuple(full))
         return gathered
 
+    def compile_jacobian(self, u) -> concurrent.futures.Future:
+        """Compile the residual-and-Jacobian program of these blocks in a
+        thread of its own, no row solved (every chunk skipped); wait for the
+        returned future before the first `evaluate`, which then finds it
+        compiled.  Why: XLA compiles on one core, so started beside the first
+        predictions (whose own compilation leaves the other core idle) the
+        costliest compilation of a fit, ~17 s for planar impacts, overlaps
+        with work that has to be done anyway."""
+        block = self.blocks[0]
+        idle = eqx.tree_at(lambda b: b.mask, block, jnp.zeros_like(block.mask))
+        pool = concurrent.futures.ThreadPoolExecutor(1)
+        future = pool.submit(
+            lambda: jax.block_until_ready(_block_values_and_jacobian(idle, u))
+        )
+        pool.shutdown(wait=False)
+        return future
+
     def predictions(self, u):
         """``(predicted, codes, steps)`` of every row, as `_predictions`."""
         return self.map(_predictions, u)
@@ -231,7 +258,7 @@ class RowBlocks:
         Jacobian rows whose forward sensitivities diverged from central
         differences (`_diverged_rows`)."""
         r, jac = self.map(_block_values_and_jacobian, u)
-        bad = _diverged_rows(jac, self.mask)
+        bad = _diverged_rows(jac, self.mask, self.diverged)
         if bad.size:
             jac[bad] = self._differences(u, bad)
 
@@ -299,7 +326,7 @@ class RowBlocks:
             finally:
                 sub.close()
             jac[rows] = fresh[rows]
-        bad = _diverged_rows(jac, self.mask)
+        bad = _diverged_rows(jac, self.mask, self.diverged)
         if bad.size:
             jac[bad] = self._differences(u, bad)
             differenced += bad.size
