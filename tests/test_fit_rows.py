@@ -113,7 +113,8 @@ def test_an_update_recomputes_the_rows_that_left_the_linear_model(noisy):
     the base's linear model by more than `_REFRESH` times the median row,
     the base's for the others.  One row is made to depart (its base residual
     shifted by 1, far above the others' curvature over the step, ~1e-3); with
-    more than a quarter of the rows departing, the full evaluation."""
+    more than a quarter of the rows departing, or one not finite, the full
+    evaluation."""
     data, problem, u0 = _problem(*noisy, 4)
     blocks = _lsq.RowBlocks(problem, np.arange(data.n), 3)
     u1 = u0 + 0.02
@@ -128,8 +129,19 @@ def test_an_update_recomputes_the_rows_that_left_the_linear_model(noisy):
         many[: 10 * k] += 1.0  # 10 of the 24 rows
         everything = _lsq._Evaluated(many, base.jacobian, base.differenced)
         full = blocks.update(u1, u0, everything, (1.0, 1.0))
+        real = blocks.predictions
+
+        def one_nan(u):  # a row whose prediction is NaN at the trial point
+            pred, codes, steps = real(u)
+            pred = np.array(pred)
+            pred[7] = np.nan
+            return pred, codes, steps
+
+        blocks.predictions = one_nan
+        fallback = blocks.update(u1, u0, base, (1.0, 1.0))
     finally:
         blocks.close()
+    np.testing.assert_array_equal(fallback.jacobian, exact.jacobian)
     np.testing.assert_allclose(got.residual, exact.residual, rtol=0, atol=1e-15)
     jac, want, old = (np.array(x.jacobian) for x in (got, exact, base))
     row = slice(5 * k, 6 * k)

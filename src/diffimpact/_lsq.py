@@ -286,8 +286,8 @@ class RowBlocks:
         ``du`` where the residuals are quadratic over the step) when the step
         is longer than `_SECANT` tolerances (``tolerance``: ``(rtol, atol)``
         of the parameters) and no longer than `_REACH`.  With more than a
-        quarter of the rows to recompute, or a row failing at ``u``, the full
-        `evaluate`.
+        quarter of the rows to recompute, or a row failing (or not finite) at
+        ``u``, the full `evaluate`.
 
         Why: near the optimum of many rows the Jacobian changes little from
         one Gauss-Newton point to the next, and where it changes, it changes
@@ -307,7 +307,8 @@ class RowBlocks:
         p = self.problem
         measured, sigma = np.asarray(p.measured), np.asarray(p.sigma)
         r = np.asarray(weighted(pred, codes, measured, sigma, self.mask))
-        if np.any(r[self.mask] == _FAILED_RESIDUAL):
+        fitted_r = r[self.mask]
+        if np.any(fitted_r == _FAILED_RESIDUAL) or not np.all(np.isfinite(fitted_r)):
             return self.evaluate(u)
         jac = np.asarray(base.jacobian).reshape(*r.shape, -1).copy()
         dev = r - np.asarray(base.residual).reshape(r.shape) - jac @ du
