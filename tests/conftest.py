@@ -120,22 +120,28 @@ _EXTENDED = pathlib.Path(__file__).with_name("extended.txt")
 @pytest.hookimpl(tryfirst=True)
 def pytest_collection_modifyitems(config, items):
     """Mark the tests listed in tests/extended.txt ``extended`` (before
-    ``-m`` selects), and refuse a line naming no test of a collected file:
-    a renamed test would otherwise slip into the default run unnoticed."""
+    ``-m`` selects), and refuse a line that names no test: of any file when
+    every test file was collected, else of the files collected whole (not
+    with node ids on the command line, nor only last run's failures)."""
     listed = {
         line.strip()
         for line in _EXTENDED.read_text().splitlines()
         if line.strip() and not line.startswith("#")
     }
-    files = {item.nodeid.split("::")[0] for item in items}
     found = set()
     for item in items:
         if item.nodeid in listed:
             item.add_marker(pytest.mark.extended)
             found.add(item.nodeid)
-    missing = sorted(n for n in listed - found if n.split("::")[0] in files)
-    # (with node ids on the command line, a file is collected only in part)
-    if missing and not any("::" in a for a in config.args):
+    files = {item.nodeid.split("::")[0] for item in items}
+    every = {f"tests/{p.name}" for p in _EXTENDED.parent.glob("test_*.py")}
+    if every <= files:
+        missing = listed - found
+    elif config.getoption("lf", default=False) or any("::" in a for a in config.args):
+        missing = set()
+    else:
+        missing = {n for n in listed - found if n.split("::")[0] in files}
+    if missing:
         raise pytest.UsageError(
-            f"tests/extended.txt names tests that do not exist: {missing}"
+            f"tests/extended.txt names tests that do not exist: {sorted(missing)}"
         )

@@ -20,7 +20,6 @@ instead of a confident wrong answer.
 
 from __future__ import annotations
 
-import concurrent.futures
 import contextlib
 import dataclasses
 import math
@@ -37,7 +36,7 @@ import optax
 
 from ._data import ExperimentData, load_experiments
 from ._declared_body import check_declared
-from ._lsq import _WARM_DIVERGED, RowBlocks, least_squares, workers
+from ._lsq import _REACH, _WARM_DIVERGED, RowBlocks, least_squares, workers
 from ._observables import (
     Experiment,
     check_rows,
@@ -387,7 +386,9 @@ def _fit_least_squares(
         )
     n_blocks = workers() if problem.chunk_size is not None else 1
     blocks = RowBlocks(problem, np.arange(n), n_blocks)
-    compiling = blocks.compile_jacobian(jnp.asarray(u0))
+    compiling = None
+    if problem.chunk_size is not None:
+        compiling = blocks.compile_jacobian(jnp.asarray(u0))
     try:
         start = blocks.predictions(u0)
         _check_predictions(problem, u0, data, "at the start values", start)
@@ -404,8 +405,8 @@ def _fit_least_squares(
         order = np.concatenate([by_cost(picked), by_cost(rest)])
         blocks.close()
         blocks = RowBlocks(problem, order, n_blocks)
-        # (its failure, if any, is raised by the first evaluation itself)
-        concurrent.futures.wait([compiling])
+        if compiling is not None:
+            compiling.join()
         with _derivatives_named(problem.experiment.settings):
             u, done, warm_info = jnp.asarray(u0), 0, None
             warm_converged = rose = False
@@ -418,7 +419,7 @@ def _fit_least_squares(
                         bar.label = f"{solver}, {k} rows"
                     u, done, warm_converged, _, _ = least_squares(
                         warm, u, solver, max_steps, max(rtol, _WARM_TOL),
-                        max(atol, _WARM_TOL), bar, update_jacobian=True,
+                        max(atol, _WARM_TOL), bar, update_jacobian=math.inf,
                     )  # fmt: skip
                 finally:
                     warm.close()
@@ -436,7 +437,7 @@ def _fit_least_squares(
                 u, more, converged, final, rose = least_squares(
                     blocks, u, "gauss-newton", max(max_steps - done, 1), rtol,
                     atol, bar, first=done, stop_if_rising=True,
-                    update_jacobian=True,
+                    update_jacobian=_REACH,
                 )  # fmt: skip
             if not warm_converged or rose:
                 u, extra, converged, final2, _ = least_squares(
@@ -859,11 +860,12 @@ def _result(
                     f"{names[i]} and {names[j]} are strongly correlated "
                     f"({corr[i, j]:+.3f}): the data barely separate them"
                 )
-    if final is not None and int(final[2]):
+    if final is not None and int(np.sum(final[2])):
         notes.append(
-            f"the forward-mode derivatives of {int(final[2])} row(s) diverged at "
-            "the fitted values (a solver artefact, e.g. in a stick phase); their "
-            "derivatives, and so the covariance, come from central differences"
+            f"the forward-mode derivatives of {int(np.sum(final[2]))} row(s) "
+            "diverged at the fitted values (a solver artefact, e.g. in a stick "
+            "phase); their derivatives, and so the covariance, come from "
+            "central differences"
         )
     blocked = final[3] if final is not None else ()
     if len(blocked):

@@ -25,6 +25,7 @@ from __future__ import annotations
 import concurrent.futures
 import math
 import os
+import threading
 
 import equinox as eqx
 import jax
@@ -81,7 +82,8 @@ _RISE = 1e-6
 
 class _Evaluated(eqx.Module):
     """Residuals ``(m,)`` and their Jacobian ``(m, p)`` at a trial point, and
-    how many rows of it came from central differences."""
+    which rows' Jacobians came from central differences (``(n,)`` booleans;
+    their sum is how many)."""
 
     residual: jax.Array
     jacobian: jax.Array
@@ -236,22 +238,32 @@ class RowBlocks:
             gathered.append(tuple(full))
         return gathered
 
-    def compile_jacobian(self, u) -> concurrent.futures.Future:
+    def compile_jacobian(self, u) -> threading.Thread:
         """Compile the residual-and-Jacobian program of these blocks in a
-        thread of its own, no row solved (every chunk skipped); wait for the
-        returned future before the first `evaluate`, which then finds it
-        compiled.  Why: XLA compiles on one core, so started beside the first
+        thread of its own, no row solved (every chunk skipped: for blocks in
+        chunks only, else it would solve them all); ``join`` the returned
+        thread before the first `evaluate`, which then finds it compiled.
+        Why: XLA compiles on one core, so started beside the first
         predictions (whose own compilation leaves the other core idle) the
         costliest compilation of a fit, ~17 s for planar impacts, overlaps
-        with work that has to be done anyway."""
+        with work that has to be done anyway.  A daemon thread: a fit that
+        stops before (a row refused at the start values, Ctrl-C) does not
+        wait for it at exit.  An error in it is kept in ``thread.error``,
+        not printed: the first evaluation compiles the same program and
+        raises it where the caller sees it."""
         block = self.blocks[0]
         idle = eqx.tree_at(lambda b: b.mask, block, jnp.zeros_like(block.mask))
-        pool = concurrent.futures.ThreadPoolExecutor(1)
-        future = pool.submit(
-            lambda: jax.block_until_ready(_block_values_and_jacobian(idle, u))
-        )
-        pool.shutdown(wait=False)
-        return future
+
+        def run():
+            try:
+                jax.block_until_ready(_block_values_and_jacobian(idle, u))
+            except Exception as error:  # noqa: BLE001 (raised again, see above)
+                thread.error = error
+
+        thread = threading.Thread(target=run, name="compile-jacobian", daemon=True)
+        thread.error = None
+        thread.start()
+        return thread
 
     def predictions(self, u):
         """``(predicted, codes, steps)`` of every row, as `_predictions`."""
@@ -266,11 +278,12 @@ class RowBlocks:
         if bad.size:
             jac[bad] = self._differences(u, bad)
 
-        m = r.size
+        m, differenced = r.size, np.zeros(self.n, bool)
+        differenced[bad] = True
         return _Evaluated(
             jnp.asarray(r.reshape(m)),
             jnp.asarray(jac.reshape(m, -1)),
-            jnp.asarray(bad.size),
+            jnp.asarray(differenced),
         )
 
     def update(self, u, base_u, base: _Evaluated, tolerance) -> _Evaluated:
@@ -286,8 +299,9 @@ class RowBlocks:
         ``du`` where the residuals are quadratic over the step) when the step
         is longer than `_SECANT` tolerances (``tolerance``: ``(rtol, atol)``
         of the parameters) and no longer than `_REACH`.  With more than a
-        quarter of the rows to recompute, or a row failing (or not finite) at
-        ``u``, the full `evaluate`.
+        quarter of the rows to recompute, or a row not finite at ``u``, the
+        full `evaluate`; with a row failing there, the base's Jacobian (such a
+        point is rejected, or ends the iterations).
 
         Why: near the optimum of many rows the Jacobian changes little from
         one Gauss-Newton point to the next, and where it changes, it changes
@@ -307,10 +321,18 @@ class RowBlocks:
         p = self.problem
         measured, sigma = np.asarray(p.measured), np.asarray(p.sigma)
         r = np.asarray(weighted(pred, codes, measured, sigma, self.mask))
-        fitted_r = r[self.mask]
-        if np.any(fitted_r == _FAILED_RESIDUAL) or not np.all(np.isfinite(fitted_r)):
-            return self.evaluate(u)
         jac = np.asarray(base.jacobian).reshape(*r.shape, -1).copy()
+        fitted_r = r[self.mask]
+        if np.any(fitted_r == _FAILED_RESIDUAL):
+            # a trial point where rows fail is rejected (LM) or ends the
+            # iterations (Gauss-Newton): its Jacobian is never used
+            return _Evaluated(
+                jnp.asarray(r.reshape(-1)),
+                jnp.asarray(jac.reshape(r.size, -1)),
+                base.differenced,
+            )
+        if not np.all(np.isfinite(fitted_r)):
+            return self.evaluate(u)
         dev = r - np.asarray(base.residual).reshape(r.shape) - jac @ du
         dev = np.where(self.mask, dev, 0.0)
         fitted = self.mask.any(axis=1)
@@ -323,7 +345,7 @@ class RowBlocks:
         long = np.max(np.abs(du) / (atol + rtol * np.abs(np.asarray(u)))) > _SECANT
         if long and np.max(np.abs(du)) <= _REACH:
             jac += 2.0 * dev[..., None] * du / (du @ du)
-        differenced = int(base.differenced)
+        differenced = np.array(base.differenced, bool) & ~stale
         if stale.any():
             rows = np.nonzero(stale)[0]
             first = np.concatenate([rows, self.order[~stale[self.order]]])
@@ -336,7 +358,7 @@ class RowBlocks:
         bad = _diverged_rows(jac, self.mask, self.diverged)
         if bad.size:
             jac[bad] = self._differences(u, bad)
-            differenced += bad.size
+            differenced[bad] = True
         m = r.size
         return _Evaluated(
             jnp.asarray(r.reshape(m)),
@@ -404,7 +426,7 @@ def _settled(sizes) -> bool:
 
 
 def least_squares(blocks: RowBlocks, u0, solver_name, max_steps, rtol, atol, bar,
-                  first=0, stop_if_rising=False, update_jacobian=False):  # fmt: skip
+                  first=0, stop_if_rising=False, update_jacobian=None):  # fmt: skip
     """optimistix's Gauss-Newton or Levenberg-Marquardt from ``u0``, one
     compiled step at a time (so that the command line can show progress).
     Returns ``(u, steps, converged, (r, J, d, blocked), rose)``: the last
@@ -418,9 +440,13 @@ def least_squares(blocks: RowBlocks, u0, solver_name, max_steps, rtol, atol, bar
     accepted point, when a trial point's cost exceeds that point's (for
     Gauss-Newton, which accepts every step); Gauss-Newton does the same,
     whatever ``stop_if_rising``, at a trial point where rows fail.
-    ``update_jacobian``: after the start, the Jacobian at each trial point is
-    the last accepted point's, updated (`RowBlocks.update`), not recomputed:
-    for a start near the optimum (a warm start's)."""
+    ``update_jacobian``: None, or a distance ``d``: after the start, the
+    Jacobian at a trial point within ``d`` (in every unconstrained parameter)
+    of the last point where it was recomputed is the last accepted point's,
+    updated (`RowBlocks.update`); farther, recomputed.  `fit` passes
+    `_REACH` for every row (the points where the covariance is computed
+    stay within 2 % of a full evaluation) and no limit for a warm start
+    (whose Jacobians only steer it)."""
     if solver_name == "levenberg-marquardt":
         solver = optx.LevenbergMarquardt(rtol=rtol, atol=atol)
     else:
@@ -429,6 +455,7 @@ def least_squares(blocks: RowBlocks, u0, solver_name, max_steps, rtol, atol, bar
     u = jnp.asarray(u0)
     evaluated = blocks.evaluate(u)  # the first trial point is the start
     base = (u, evaluated)  # the last accepted point, evaluated
+    fresh = np.asarray(u, float)  # where the Jacobian was last recomputed
     f_struct, aux_struct = jax.eval_shape(lambda: _known_fn(u, evaluated))
     state = _init(solver, _known_fn, u, evaluated, options, f_struct, aux_struct, tags)
     steps, converged, final = 0, False, None
@@ -441,10 +468,14 @@ def least_squares(blocks: RowBlocks, u0, solver_name, max_steps, rtol, atol, bar
             converged = result == optx.RESULTS.successful and not blocked.size
             break
         if steps:  # (at the first step the trial point is the start, done)
-            if update_jacobian:
+            trial = np.asarray(state.y_eval, float)
+            if update_jacobian is not None and (
+                np.max(np.abs(trial - fresh)) <= update_jacobian
+            ):
                 evaluated = blocks.update(state.y_eval, *base, (rtol, atol))
             else:
                 evaluated = blocks.evaluate(state.y_eval)
+                fresh = trial
             failed = _failed_rows(evaluated.residual, blocks.mask)
             if failed.size and solver_name != "levenberg-marquardt":
                 # Gauss-Newton would accept the point and step on from its
