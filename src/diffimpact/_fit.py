@@ -448,6 +448,8 @@ def _fit_least_squares(
                 more += extra
     finally:
         blocks.close()
+        if compiling is not None:  # (a fit stopped early: see compile_jacobian)
+            compiling.join()
     return u, done + more, converged, final, warm_info, problem
 
 

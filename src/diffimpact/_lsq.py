@@ -246,11 +246,13 @@ class RowBlocks:
         Why: XLA compiles on one core, so started beside the first
         predictions (whose own compilation leaves the other core idle) the
         costliest compilation of a fit, ~17 s for planar impacts, overlaps
-        with work that has to be done anyway.  A daemon thread: a fit that
-        stops before (a row refused at the start values, Ctrl-C) does not
-        wait for it at exit.  An error in it is kept in ``thread.error``,
-        not printed: the first evaluation compiles the same program and
-        raises it where the caller sees it."""
+        with work that has to be done anyway.  Not a daemon thread: one
+        still inside XLA when the interpreter exits aborts the process
+        ("terminate called ...", seen in one exit of three), so a fit that
+        stops before its first evaluation (a row refused at the start
+        values) joins it first, a wait of at most the compilation.  An error
+        in it is kept in ``thread.error``, not printed: the first evaluation
+        compiles the same program and raises it where the caller sees it."""
         block = self.blocks[0]
         idle = eqx.tree_at(lambda b: b.mask, block, jnp.zeros_like(block.mask))
 
@@ -260,7 +262,7 @@ class RowBlocks:
             except Exception as error:  # noqa: BLE001 (raised again, see above)
                 thread.error = error
 
-        thread = threading.Thread(target=run, name="compile-jacobian", daemon=True)
+        thread = threading.Thread(target=run, name="compile-jacobian")
         thread.error = None
         thread.start()
         return thread
