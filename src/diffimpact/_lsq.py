@@ -276,12 +276,17 @@ class RowBlocks:
         Jacobian rows whose forward sensitivities diverged from central
         differences (`_diverged_rows`)."""
         r, jac = self.map(_block_values_and_jacobian, u)
+        return self._checked(u, r, jac, np.zeros(self.n, bool))
+
+    def _checked(self, u, r, jac, differenced) -> _Evaluated:
+        """``(r, J)`` at ``u`` as an `_Evaluated`, the rows whose derivatives
+        diverged (`_diverged_rows`) replaced by central differences and
+        added to `differenced` (per row)."""
         bad = _diverged_rows(jac, self.mask, self.diverged)
         if bad.size:
             jac[bad] = self._differences(u, bad)
-
-        m, differenced = r.size, np.zeros(self.n, bool)
-        differenced[bad] = True
+            differenced[bad] = True
+        m = r.size
         return _Evaluated(
             jnp.asarray(r.reshape(m)),
             jnp.asarray(jac.reshape(m, -1)),
@@ -357,16 +362,7 @@ class RowBlocks:
             finally:
                 sub.close()
             jac[rows] = fresh[rows]
-        bad = _diverged_rows(jac, self.mask, self.diverged)
-        if bad.size:
-            jac[bad] = self._differences(u, bad)
-            differenced[bad] = True
-        m = r.size
-        return _Evaluated(
-            jnp.asarray(r.reshape(m)),
-            jnp.asarray(jac.reshape(m, -1)),
-            jnp.asarray(differenced),
-        )
+        return self._checked(u, r, jac, differenced)
 
     def _differences(self, u, rows):
         """``d r / d u`` of `rows` by central differences of their predictions
