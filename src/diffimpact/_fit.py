@@ -345,9 +345,10 @@ _WARM_PER_PARAMETER, _WARM_MIN, _WARM_FACTOR = 64, 128, 4
 # The warm start stops within this (relative) of its own optimum: about the
 # spread of a subsample's estimates around every row's optimum (there 4
 # standard errors: 2e-3 of mu, 3e-3 of S_y), which the iterations on every row
-# correct anyway, and far above the rounding of final iterations.  At 1e-4 the warm start on 256 rows of that fit
-# took one evaluation more (7 s of its 29 s) to move 1.5e-3, and the
-# iterations on every row the same steps after it.
+# correct anyway, and far above the rounding of final iterations.  At 1e-4
+# the warm start on 256 rows of that fit took one evaluation more (7 s of its
+# 29 s) to move 1.5e-3, and the iterations on every row the same steps after
+# it.
 _WARM_TOL = 1e-3
 
 
