@@ -102,9 +102,15 @@ class _Planar(eqx.Module):
             spring = -self.spring_stiffness(d) * y.spring * sc.length
             f_t = self.friction.spring_force(f_n, spring, v_t, width)
         else:
-            hold = self.holding_force(j_n, j_t, f_n, bias)
+            hold = self.holding_force(j_n, j_t, f_n, bias, self.load(q))
             f_t = self.friction.force(f_n, v_t, width, holding_force=hold)
         return q, q_dot, d, j_n, j_t, v_n, v_t, f_n, f_t, bias
+
+    def load(self, q):
+        """The generalised forces other than the contact's: gravity, and the
+        body's own elastic forces where it has any (`internal_force`)."""
+        internal = self.scene.internal_force(q)
+        return self.gravity if internal is None else self.gravity + internal
 
     def spring_stiffness(self, d):
         """Mindlin's no-slip tangential stiffness ``k_t = 8 G* sqrt(R d)`` [N/m]."""
@@ -128,20 +134,21 @@ class _Planar(eqx.Module):
         rate = v_t * (1.0 - at_cap * outward) - relax
         return rate * self.sc.time / self.sc.length
 
-    def holding_force(self, j_n, j_t, f_n, bias):
+    def holding_force(self, j_n, j_t, f_n, bias, load):
         """The tangential force that keeps the slip velocity constant:
-        ``dv_t/dt = J_t M^-1 (-J_n^T F_n + J_t^T F_t + g) + (dJ_t/dt) q_dot = 0``
+        ``dv_t/dt = J_t M^-1 (-J_n^T F_n + J_t^T F_t + Q) + (dJ_t/dt) q_dot = 0``
         solved for ``F_t`` (the mass matrix is diagonal and ``J_t M^-1 J_t^T >
-        0``; ``bias = (dJ_t/dt) q_dot``), the input of the exact-hold friction
-        law (`Friction`)."""
-        free = j_t @ ((self.gravity - j_n * f_n) * self.inv_mass) + bias
+        0``; ``bias = (dJ_t/dt) q_dot``; ``Q``, `load`, gravity and any elastic
+        forces of the body), the input of the exact-hold friction law
+        (`Friction`)."""
+        free = j_t @ ((load - j_n * f_n) * self.inv_mass) + bias
         return -free / (j_t @ (j_t * self.inv_mass))
 
 
 def _planar_field(t, y: PlanarState, p: _Planar) -> PlanarState:
     sc, settings = p.sc, p.settings
     q, q_dot, d, j_n, j_t, v_n, v_t, f_n, f_t, bias = p.forces(y)
-    q_ddot = (-j_n * f_n + j_t * f_t + p.gravity) * p.inv_mass
+    q_ddot = (-j_n * f_n + j_t * f_t + p.load(q)) * p.inv_mass
     s = step(v_n / p.v0, settings.velocity_width)
     spring = None
     if p.friction is not None and p.friction.compliant:

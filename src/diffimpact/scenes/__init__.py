@@ -4,6 +4,7 @@ from ._bar import FreeBar as FreeBar
 from ._base import AbstractScene as AbstractScene
 from ._base import NormalProblem as NormalProblem
 from ._body import PlanarBody as PlanarBody
+from ._flexible_bar import FlexibleBar as FlexibleBar
 from ._link import RotatingLink as RotatingLink
 from ._mechanisms import AbstractMechanism as AbstractMechanism
 from ._mechanisms import BouncingBar as BouncingBar

@@ -57,6 +57,12 @@ class AbstractPlanarScene(AbstractScene):
     def contact(self):
         """The `ContactProperties` of the pair."""
 
+    def internal_force(self, q) -> Array | None:
+        """Generalised forces of the body's own elasticity at ``q``, shape
+        ``(n,)`` (a vibrating bar's modes), or None for a rigid body (the
+        default: nothing is added to the vector field)."""
+        return None
+
     def report(self, q, q_dot) -> dict:
         """What an experimenter measures, from the state after separation."""
         return {}
