@@ -62,21 +62,20 @@ KEYS = (
 )
 
 
-def bar(xi, modes, height=0.3, angle=np.pi / 4, **kw):
-    mass, e, s_y = BARS[xi]
-    body = di.Material(e, 0.3, s_y)
+def rod(mass, body, modes, height=0.3, angle=np.pi / 4, **kw):
+    """`FreeBar` (``modes`` None) or `FlexibleBar` with ``modes = (axial,
+    bending)``."""
     if modes is None:
         return scenes.FreeBar(mass, body, PLATE, height, angle=angle)
     return scenes.FlexibleBar(
-        mass,
-        body,
-        PLATE,
-        height,
-        angle=angle,
-        axial_modes=modes[0],
-        bending_modes=modes[1],
-        **kw,
-    )
+        mass, body, PLATE, height, angle=angle, axial_modes=modes[0],
+        bending_modes=modes[1], **kw,
+    )  # fmt: skip
+
+
+def bar(xi, modes, height=0.3, angle=np.pi / 4, **kw):
+    mass, e, s_y = BARS[xi]
+    return rod(mass, di.Material(e, 0.3, s_y), modes, height, angle, **kw)
 
 
 def outcome(scene, settings=None):
@@ -189,19 +188,7 @@ def by_xi(modes):
 @eqx.filter_jit
 def held_ratio(angle, mass, e, s_y, modes):
     """``|P_t| / P_n`` of the contact held throughout (``criterion="impulse"``)."""
-    body = di.Material(e, 0.3, s_y)
-    if modes is None:
-        scene = scenes.FreeBar(mass, body, PLATE, 0.3, angle=angle)
-    else:
-        scene = scenes.FlexibleBar(
-            mass,
-            body,
-            PLATE,
-            0.3,
-            angle=angle,
-            axial_modes=modes[0],
-            bending_modes=modes[1],
-        )
+    scene = rod(mass, di.Material(e, 0.3, s_y), modes, angle=angle)
     r = di.simulate(scene, LAW, "smooth", friction=di.Friction(1e3))
     ex = r.extras
     p_t = ex["tangential_impulse_compression"] + ex["tangential_impulse_restitution"]
@@ -255,24 +242,7 @@ def diagram(modes):
     rows = []
     for mu_s in (0.35, 0.5, 0.7, 0.85):
         for kind in (None, modes):
-            mass, e, s_y = BARS["1/8"]
-            body = di.Material(e, 0.3, s_y)
-            if kind is None:
-                make = lambda a, body=body, mass=mass: scenes.FreeBar(  # noqa: E731
-                    mass, body, PLATE, 0.3, angle=a
-                )
-            else:
-                make = lambda a, body=body, mass=mass, kind=kind: (  # noqa: E731
-                    scenes.FlexibleBar(
-                        mass,
-                        body,
-                        PLATE,
-                        0.3,
-                        angle=a,
-                        axial_modes=kind[0],
-                        bending_modes=kind[1],
-                    )
-                )
+            make = lambda a, kind=kind: bar("1/8", kind, angle=a)  # noqa: E731
             roots = di.critical_angles(
                 make, LAW, di.Friction(mu_s), grid, criterion="impulse"
             )

@@ -309,3 +309,16 @@ def test_the_four_composite_bars_rigid_and_flexible():
     # rises, then falls: exactly one change of direction
     assert np.sum(rises[1:] != rises[:-1]) == 1
     assert rises[0] and not rises[-1]
+
+
+def test_rigid_laws_refuse_a_vibrating_bar():
+    """Routh's method treats the body as rigid: a bar with modes is refused
+    (its modal columns would make the impulsive effective mass depend on the
+    number of modes), and the rigid bar it contains is accepted."""
+    with pytest.raises(TypeError, match="rigid impact laws treat the body as rigid"):
+        di.rigid_impact(flexible(1, 1), 0.3, 0.7)
+    rigid = di.rigid_impact(scenes.FreeBar(MASS, BAR, PLATE, HEIGHT), 0.3, 0.7)
+    no_modes = di.rigid_impact(flexible(0, 0), 0.3, 0.7)
+    assert float(no_modes["angular_velocity_after"]) == pytest.approx(
+        float(rigid["angular_velocity_after"]), rel=1e-14
+    )

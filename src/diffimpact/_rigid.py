@@ -179,6 +179,12 @@ def rigid_impact(
             f"and its lever), got {type(scene).__name__}; a normal impact's rigid "
             "answer is its COR alone"
         )
+    if scene.internal_force(scene.initial_state()[0]) is not None:
+        raise TypeError(
+            f"rigid impact laws treat the body as rigid; {type(scene).__name__} "
+            "has elastic forces of its own (vibration modes): use the compliant "
+            "solve (diffimpact.simulate), or the rigid scene (e.g. FreeBar)"
+        )
     mu, cor = as_float(mu), as_float(cor)
     require_scalars(scene, "scene")
     limits = [

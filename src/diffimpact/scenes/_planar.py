@@ -36,6 +36,12 @@ class AbstractPlanarScene(AbstractScene):
     # follows from the normal solution in closed form (`diffimpact.simulate`,
     # method "auto" or "quadrature").
     tangential_decouples: ClassVar[bool] = False
+    # How many leading coordinates are the rigid motion (None: all).  The
+    # impact's units (its effective normal mass, hence length and time scales)
+    # and the outside-model check use their inertia alone: the effective mass
+    # of a point on an elastic body falls without bound as modes are added
+    # (a vibrating bar's, `FlexibleBar`).
+    rigid_coordinates: ClassVar[int | None] = None
 
     @abc.abstractmethod
     def mass_diagonal(self) -> Array:
@@ -82,8 +88,9 @@ class AbstractPlanarScene(AbstractScene):
         q0, q_dot0 = self.initial_state()
         _, j_n, _ = self.kinematics(q0)
         inv_mass = 1.0 / self.mass_diagonal()
+        rigid = slice(self.rigid_coordinates)
         return NormalProblem(
-            mass=1.0 / jnp.sum(j_n**2 * inv_mass),
+            mass=1.0 / jnp.sum(j_n[rigid] ** 2 * inv_mass[rigid]),
             contact=self.contact(),
             velocity=j_n @ q_dot0,
             gravity=jnp.sum(j_n * inv_mass * self.generalized_gravity()),
