@@ -152,7 +152,7 @@ def test_convergence_with_the_number_of_modes():
 
 def test_the_stiff_limit_is_the_rigid_bar():
     """Raising the structural modulus by 1e8 (one axial, one bending mode)
-    gives `FreeBar`'s outcome to 1e-8 (measured 7e-10, 3.5e-9 and 1.3e-9 for
+    gives `FreeBar`'s outcome to 1e-8 (measured 8e-10, 3.6e-9 and 1.3e-9 for
     the three velocities); the spin approaches it as ``1 / E_s`` (its
     difference 1.26e-7 at 1e6 times the modulus, 1.26e-9 at 1e8)."""
     law, friction = di.JacksonGreen(), di.Friction(0.3)
