@@ -189,10 +189,7 @@ def by_xi(modes):
 def held_ratio(angle, mass, e, s_y, modes):
     """``|P_t| / P_n`` of the contact held throughout (``criterion="impulse"``)."""
     scene = rod(mass, di.Material(e, 0.3, s_y), modes, angle=angle)
-    r = di.simulate(scene, LAW, "smooth", friction=di.Friction(1e3))
-    ex = r.extras
-    p_t = ex["tangential_impulse_compression"] + ex["tangential_impulse_restitution"]
-    return jnp.abs(p_t) / (r.impulse_compression + r.impulse_restitution)
+    return di.held_impulse_ratio(scene, LAW)
 
 
 def diagram(modes):

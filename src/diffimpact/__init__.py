@@ -20,6 +20,7 @@ instead of returning NaN.  `fit` needs float64 and says so.
 from . import scenes as scenes
 from ._calibrate import damping_ratio as damping_ratio
 from ._critical import critical_angles as critical_angles
+from ._critical import held_impulse_ratio as held_impulse_ratio
 from ._crossval import CrossValidation as CrossValidation
 from ._crossval import cross_validate as cross_validate
 from ._data import DataError as DataError

@@ -49,6 +49,18 @@ _LEVEL_SLIDING = math.exp(-1.0)
 _HOLDING = 1e3
 
 
+def held_impulse_ratio(scene, law, *, settings: SolverSettings = _SETTINGS):
+    """``|P_t| / P_n``: the ratio of the tangential to the normal impulse of
+    `scene`'s contact held throughout (smooth solve with the friction
+    coefficient `_HOLDING`), the static coefficient it needs not to slide
+    (Wang & Fu 2019, eq. 22; ``critical_angles(..., criterion="impulse")``
+    finds where it equals ``mu_s``).  Jittable and differentiable."""
+    r = simulate(scene, law, "smooth", friction=Friction(_HOLDING), settings=settings)
+    ex = r.extras
+    p_t = ex["tangential_impulse_compression"] + ex["tangential_impulse_restitution"]
+    return jnp.abs(p_t) / (r.impulse_compression + r.impulse_restitution)
+
+
 def _indicator(angle, dyn, static, settings, level, criterion="slip"):
     """Signed stick/slip indicator at ``angle``, in slip widths: > 0 slides
     (`critical_angles`; with ``criterion="impulse"`` the impulse ratio of the
@@ -56,15 +68,7 @@ def _indicator(angle, dyn, static, settings, level, criterion="slip"):
     make, law, friction = eqx.combine(dyn, static)
     if criterion == "impulse":
         coefficient = friction.mu if friction.mu_s is None else friction.mu_s
-        r = simulate(make(angle), law, "smooth", friction=Friction(_HOLDING),
-                     settings=settings)  # fmt: skip
-        ex = r.extras
-        p_t = (
-            ex["tangential_impulse_compression"] + ex["tangential_impulse_restitution"]
-        )
-        return jnp.abs(p_t) / (r.impulse_compression + r.impulse_restitution) - (
-            coefficient
-        )
+        return held_impulse_ratio(make(angle), law, settings=settings) - coefficient
     # The smooth solve's slip diagnostics, also for a sphere (whose default is
     # the closed form, where a stuck contact's least slip is exactly 0 and the
     # indicator has no sign change).

@@ -191,8 +191,7 @@ def planar_setup(scene, law, friction, settings):
     slip_sign = jnp.where(
         v_t0 != 0, jnp.sign(v_t0), jnp.where(push != 0, jnp.sign(push), 1.0)
     )
-    rigid = slice(scene.rigid_coordinates)  # (the units: `rigid_coordinates`)
-    normal_mass = 1.0 / jnp.sum(j_n0[rigid] ** 2 * inv_mass[rigid])
+    normal_mass = scene.effective_normal_mass(j_n0, inv_mass)
     contact = scene.contact()
     problem = NormalProblem(
         mass=normal_mass,

@@ -69,6 +69,12 @@ class AbstractPlanarScene(AbstractScene):
         default: nothing is added to the vector field)."""
         return None
 
+    def effective_normal_mass(self, j_n, inv_mass):
+        """``1 / (J_n M^-1 J_n^T)`` over the rigid coordinates
+        (`rigid_coordinates`): the mass that sets the impact's units."""
+        rigid = slice(self.rigid_coordinates)
+        return 1.0 / jnp.sum(j_n[rigid] ** 2 * inv_mass[rigid])
+
     def report(self, q, q_dot) -> dict:
         """What an experimenter measures, from the state after separation."""
         return {}
@@ -88,9 +94,8 @@ class AbstractPlanarScene(AbstractScene):
         q0, q_dot0 = self.initial_state()
         _, j_n, _ = self.kinematics(q0)
         inv_mass = 1.0 / self.mass_diagonal()
-        rigid = slice(self.rigid_coordinates)
         return NormalProblem(
-            mass=1.0 / jnp.sum(j_n[rigid] ** 2 * inv_mass[rigid]),
+            mass=self.effective_normal_mass(j_n, inv_mass),
             contact=self.contact(),
             velocity=j_n @ q_dot0,
             gravity=jnp.sum(j_n * inv_mass * self.generalized_gravity()),
