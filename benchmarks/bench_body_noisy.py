@@ -12,7 +12,10 @@ file, and the file gives that sigma.
    fresh process including compilation; each estimate against the truth, in
    per cent and in standard errors; then the same for a dissipative law
    (Hunt-Crossley, data made with e = 0.6 and mu = 0.25; mu and the COR
-   fitted from 0.4 and 0.5).
+   fitted from 0.4 and 0.5).  ``--recovery jg3``, ``jg4``, ``jg5``: the
+   Jackson-Green fit with the body's own parameters free as well: the centre
+   of mass (com_x from 4 mm; com_y, truth 0, from 1 mm) and the moment of
+   inertia (from 1.2 times the truth): 3, 4 and 5 free parameters.
 2. Speed-dependent restitution: the measured normal COR of the contact point,
    binned by normal approach speed, against the fitted compliant model and the
    best constant-COR rigid law (energetic).
@@ -21,8 +24,8 @@ file, and the file gives that sigma.
 
 Prints the tables; writes ``benchmarks/body_noisy.png``.  Run:
 ``python benchmarks/bench_body_noisy.py`` (about 20 minutes on 2 cores;
-``--recovery jg`` or ``--recovery hc``: that recovery fit alone, 3-4
-minutes).
+``--recovery jg``, ``hc``, ``jg3``, ``jg4`` or ``jg5``: that recovery fit
+alone, 3-4 minutes).
 """
 
 from __future__ import annotations
@@ -46,6 +49,14 @@ from bench_body import BODY, TRUTH, predict_batch, states  # noqa: E402
 HERE = Path(__file__).parent
 N, NOISE, SEED = 2000, 0.02, 7
 TRUE = {"mu": 0.25, "scene.flat.yield_strength": 400e6}
+# the body's own parameters, freed one by one in ``--recovery jg3..jg5``: the
+# truth and the start values
+BODY_TRUE = {"scene.com_x": 0.005, "scene.com_y": 0.0, "scene.inertia": BODY.inertia}
+BODY_START = {
+    "scene.com_x": 0.004,
+    "scene.com_y": 0.001,
+    "scene.inertia": 1.2 * BODY.inertia,
+}
 COLUMNS = ("velocity_x_after_m_s", "velocity_y_after_m_s", "angular_velocity_rad_s")
 
 
@@ -81,10 +92,10 @@ def recovery(path, start, truth, start_values):
     print("| parameter | truth | estimate | std. error | off [%] | off [SE] |")
     print("|---|---|---|---|---|---|")
     for name, est, se in zip(fit.names, fit.values, fit.std_errors, strict=True):
-        off, z = 100 * (est / truth[name] - 1), (est - truth[name]) / se
+        z = (est - truth[name]) / se
+        off = f"{100 * (est / truth[name] - 1):+.2f}" if truth[name] else "-"
         print(
-            f"| {name} | {truth[name]:.6g} | {est:.6g} | {se:.3g} | {off:+.2f} | "
-            f"{z:+.2f} |"
+            f"| {name} | {truth[name]:.6g} | {est:.6g} | {se:.3g} | {off} | {z:+.2f} |"
         )
     print()
     return fit
@@ -102,6 +113,13 @@ def main() -> int:
     only = args[args.index("--recovery") + 1] if "--recovery" in args else ""
     if only != "hc":
         x, clean, cols = noisy_file(path)
+    if only in ("jg3", "jg4", "jg5"):
+        body = dict(list(BODY_TRUE.items())[: int(only[2]) - 2])
+        start = di.Experiment(BODY, di.JacksonGreen(), di.Friction(0.4))
+        values = {"scene.flat.yield_strength": 300e6}
+        values.update({k: BODY_START[k] for k in body})
+        recovery(path, start, {**TRUE, **body}, values)
+        return 0
 
     # 1. Recovery, compilation included (nothing of the fit is compiled yet:
     # the file was written by a plain prediction).  ``--recovery jg`` or

@@ -258,6 +258,32 @@ def test_the_linear_convergence_stopping_rule(sizes, settled):
     assert _lsq._settled(sizes) is settled
 
 
+def test_the_step_left_in_standard_errors():
+    """`_standard_errors_left` is the Gauss-Newton step's length in the
+    covariance's metric: ``sqrt(step^T C^-1 step)`` with ``C = s^2 (J^T
+    J)^-1``, ``s^2 = |r|^2 / dof`` (checked on a random linear problem whose
+    rows are all fitted, and with a third of them masked out, where the dof
+    counts only the fitted ones); exact data (r = 0) never stop it early."""
+    rng = np.random.default_rng(5)
+    n, k, p = 30, 2, 3
+    jac = rng.standard_normal((n * k, p))
+    r = rng.standard_normal(n * k)
+    step = -np.linalg.lstsq(jac, r, rcond=None)[0]
+    for masked in (0, 10):
+        mask = np.ones((n, k), bool)
+        mask[:masked] = False
+        rr = np.where(mask.ravel(), r, 0.0)
+        jj = np.where(mask.ravel()[:, None], jac, 0.0)
+        st = -np.linalg.lstsq(jj, rr, rcond=None)[0]
+        s2 = rr @ rr / (mask.sum() - p)
+        cov = s2 * np.linalg.inv(jj.T @ jj)
+        want = np.sqrt(st @ np.linalg.solve(cov, st))
+        got = _lsq._standard_errors_left(jj, rr, st, mask)
+        assert abs(got / want - 1) < 1e-12, (masked, got, want)
+    zero = np.zeros(n * k)
+    assert _lsq._standard_errors_left(jac, zero, step, np.ones((n, k), bool)) == np.inf
+
+
 @pytest.mark.parametrize("bad", [1, 0, -3, 2.5, True, "half"])
 def test_a_bad_subsample_is_named(noisy, bad):
     path, exp = noisy

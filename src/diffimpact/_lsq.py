@@ -423,8 +423,35 @@ def _settled(sizes) -> bool:
     return theta < 0.5 and theta / (1.0 - theta) * sizes[-1] <= 1.0
 
 
+def _standard_errors_left(jac, r, newton, mask) -> float:
+    """The length of the Gauss-Newton step ``newton`` from a point in units of
+    the standard errors there: its norm in the metric of the covariance
+    ``s^2 (J^T J)^-1``, i.e. ``|J newton| / s`` with ``s^2 = |r|^2 / dof`` (the
+    estimated noise variance; with exact data, rounding, so that the test
+    below ``rtol`` never fires early).  It is sqrt(2 EDM / s^2), MINUIT's
+    "estimated distance to the minimum" (James & Roos, 1975), which stops
+    where the predicted decrease of chi^2 is negligible.
+
+    Why besides the step's size in ``rtol``/``atol``: a parameter whose value
+    is near 0 (a centre-of-mass offset, with the identity transform) is
+    determined only to ``atol``, and one the data barely determine (the
+    Gauss-Newton step along a weak combination stays long in the parameters
+    while it changes the cost by nothing) to far less.  Measured on 2,000
+    noisy planar impacts with mu, S_y, com_x and com_y free (truth com_y = 0,
+    standard error 3.3e-6 m): five evaluations of every row (53 s) after the
+    cost had stopped changing, each step a few 1e-3 standard errors."""
+    dof = int(np.sum(mask)) - newton.size
+    if dof <= 0:
+        return math.inf
+    s = math.sqrt(float(r @ r) / dof)
+    if s == 0.0:
+        return math.inf
+    return float(np.linalg.norm(jac @ newton)) / s
+
+
 def least_squares(blocks: RowBlocks, u0, solver_name, max_steps, rtol, atol, bar,
-                  first=0, stop_if_rising=False, update_jacobian=None):  # fmt: skip
+                  first=0, stop_if_rising=False, update_jacobian=None,
+                  within=None):  # fmt: skip
     """optimistix's Gauss-Newton or Levenberg-Marquardt from ``u0``, one
     compiled step at a time (so that the command line can show progress).
     Returns ``(u, steps, converged, (r, J, d, blocked), rose)``: the last
@@ -444,7 +471,10 @@ def least_squares(blocks: RowBlocks, u0, solver_name, max_steps, rtol, atol, bar
     updated (`RowBlocks.update`); farther, recomputed.  `fit` passes
     `_REACH` for every row (the points where the covariance is computed
     stay within 2 % of a full evaluation) and no limit for a warm start
-    (whose Jacobians only steer it)."""
+    (whose Jacobians only steer it).
+    ``within``: None, or a number ``tau``: also stationary where the
+    Gauss-Newton step from the point is below ``tau`` standard errors
+    (`_standard_errors_left`), whatever its size in ``rtol``/``atol``."""
     if solver_name == "levenberg-marquardt":
         solver = optx.LevenbergMarquardt(rtol=rtol, atol=atol)
     else:
@@ -512,7 +542,10 @@ def least_squares(blocks: RowBlocks, u0, solver_name, max_steps, rtol, atol, bar
             )
             if int(state.num_steps_since_acceptance) == 0:
                 sizes.append(scaled)
-            if scaled <= 1.0 or _settled(sizes):
+            close = within is not None and (
+                _standard_errors_left(jac, r, newton, blocks.mask) <= within
+            )
+            if scaled <= 1.0 or _settled(sizes) or close:
                 # That last step is taken without a new evaluation: the point
                 # moves to within the tolerance of the optimum, and the
                 # residuals follow to first order (an error of order |J|
