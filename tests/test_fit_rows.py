@@ -84,6 +84,45 @@ def test_central_differences_replace_flagged_rows(noisy, monkeypatch):
     assert np.max(err / np.abs(np.asarray(exact.jacobian))) < 1e-6
 
 
+def test_forward_differences_give_the_forward_mode_jacobian(noisy, monkeypatch):
+    """``jacobian="differences"``: the residuals are forward mode's to
+    rounding (another program), the Jacobian within 1e-4 of its RMS (step
+    1e-5 in log S_y: truncation ~h/2 times the log-curvature, the
+    quadrature's rounding ~1e-12 / 1e-5; measured 2.2e-5), and no row is counted as
+    differenced (that count is of rows whose forward mode diverged).  A row
+    predicted at the point but failing at the shifted one gets forward mode's
+    derivatives (forced here for row 5)."""
+    data, problem, u0 = _problem(*noisy, 4)
+    exact_blocks = _lsq.RowBlocks(problem, np.arange(data.n), 3)
+    blocks = _lsq.RowBlocks(problem, np.arange(data.n), 3, jacobian="differences")
+    try:
+        exact = exact_blocks.evaluate(u0)
+        fd = blocks.evaluate(u0)
+        real = _lsq._predictions
+
+        def failing_when_shifted(block, u):
+            pred, codes, steps = real(block, u)
+            if float(u[0]) != float(u0[0]):
+                rows = np.asarray(block.inputs["impact_velocity"])
+                codes = np.where(rows == VELOCITIES[5], 1, np.asarray(codes))
+            return pred, codes, steps
+
+        monkeypatch.setattr(_lsq, "_predictions", failing_when_shifted)
+        fallback = blocks.evaluate(u0)
+    finally:
+        exact_blocks.close()
+        blocks.close()
+    np.testing.assert_allclose(fd.residual, exact.residual, rtol=0, atol=1e-14)
+    assert int(np.sum(fd.differenced)) == 0
+    want = np.asarray(exact.jacobian)
+    err = np.abs(np.asarray(fd.jacobian) - want) / np.sqrt(np.mean(want**2))
+    assert np.max(err) < 1e-4, np.max(err)
+    k = np.asarray(problem.mask).shape[1]
+    got = np.asarray(fallback.jacobian)
+    np.testing.assert_allclose(got[5 * k : 6 * k], want[5 * k : 6 * k], rtol=1e-12)
+    assert np.max(np.abs(got[: 5 * k] - want[: 5 * k]) / np.abs(want[: 5 * k])) > 0
+
+
 def test_one_flagged_row_is_differenced_alone(noisy, monkeypatch):
     """One row flagged, in one of three blocks: its 2 p perturbed solves run
     side by side with the other blocks skipped; that row's Jacobian agrees
@@ -198,8 +237,10 @@ def test_warm_start_reaches_the_same_optimum(noisy):
     error as iterating on all rows from the start (both to rtol 1e-6 of the
     log parameter, so within a few 1e-7), and the result says how it went.
     The standard errors come from the Jacobian at the last point evaluated,
-    which the stopping rule (`_settled`) allows a step of up to
-    (1 - theta) / theta tolerances from the optimum: 3.3e-5 apart measured."""
+    which the stopping rules allow a step of up to (1 - theta) / theta
+    tolerances or 0.1 standard errors from the optimum: 1.4e-4 apart measured
+    (forward mode or forward differences alike; 3.3e-5 before the rule in
+    standard errors)."""
     path, exp = noisy
     kw = dict(free="yield_strength", start={"yield_strength": 250e6}, chunk_size=4)
     whole = di.fit(path, exp, subsample=None, **kw)
@@ -208,7 +249,7 @@ def test_warm_start_reaches_the_same_optimum(noisy):
     assert 1 <= warm.subsample[1] < warm.iterations
     assert warm.converged and whole.converged
     assert abs(warm.values[0] / whole.values[0] - 1) < 1e-6
-    assert abs(warm.std_errors[0] / whole.std_errors[0] - 1) < 1e-4
+    assert abs(warm.std_errors[0] / whole.std_errors[0] - 1) < 5e-4
     assert "iterations on 8 rows" in warm.summary()
     assert warm.to_dict()["subsample"] == {"rows": 8, "iterations": warm.subsample[1]}
     # the truth lies within the noise: 0.5 % noise on 48 values
@@ -232,6 +273,9 @@ def test_a_rising_gauss_newton_step_hands_back_to_the_solver(noisy, monkeypatch)
         return out
 
     monkeypatch.setattr(_lsq, "_RISE", -1.0)
+    # (without the stop in standard errors, which on these 24 rows stops the
+    # Gauss-Newton steps before any trial)
+    monkeypatch.setattr(di._fit, "_WITHIN", 0.0)
     monkeypatch.setattr(di._fit, "least_squares", spy)
     forced = di.fit(path, exp, subsample=8, **kw)
     assert [c[0] for c in calls] == [
@@ -282,6 +326,11 @@ def test_the_step_left_in_standard_errors():
         assert abs(got / want - 1) < 1e-12, (masked, got, want)
     zero = np.zeros(n * k)
     assert _lsq._standard_errors_left(jac, zero, step, np.ones((n, k), bool)) == np.inf
+
+
+def test_a_bad_jacobian_option_is_named(noisy):
+    with pytest.raises(ValueError, match="`jacobian` must be one of"):
+        di.fit(noisy[0], noisy[1], "yield_strength", jacobian="reverse")
 
 
 @pytest.mark.parametrize("bad", [1, 0, -3, 2.5, True, "half"])
