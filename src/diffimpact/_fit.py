@@ -242,11 +242,11 @@ def fit(
       The least-squares solvers stop where the Gauss-Newton step from the
       current point is below ``atol + rtol |u|`` in every parameter, or where
       that step, once taken, lands within it by the contraction of the last
-      steps (linear convergence; the how-to guide says how), or where it is
-      below 0.1 standard errors (MINUIT's estimated distance to the minimum;
-      the step is taken, and the contraction of the steps leaves the
-      estimate about 0.01 standard errors from the optimum: statistically
-      the same), or optimistix's own test holds first.
+      steps (linear convergence; the how-to guide says how), or at a point
+      that this step and the same contraction place within 0.1 standard
+      errors of the optimum (MINUIT's estimated distance to the minimum,
+      independent of the parameters' scales), or optimistix's own test holds
+      first.
     - `progress`: print a progress bar to stderr.
     - `chunk_size`: rows solved together (an integer >= 1), or None for all
       rows at once (one ``vmap``). ``"auto"`` (default): on a CPU, chunks of
@@ -265,7 +265,10 @@ def fit(
       differences of the predictions, step 1e-5 in each unconstrained
       parameter: within 7e-5 of forward mode on planar impacts, and cheaper,
       since a solve's tangent costs more than the solve).  ``"auto"``
-      (default): differences for rows in chunks on a CPU, else forward mode.
+      (default): differences for rows in chunks on a CPU, else forward mode
+      (also where an unbounded parameter starts at 0, which gives the step
+      no scale).  The optax solvers take gradients by reverse mode and
+      ignore it.
       Either way the residuals are the model's, so the optimum is the same
       (the Jacobian's error moves it by about that fraction of a standard
       error, and the standard errors by that fraction).
@@ -324,7 +327,7 @@ def fit(
     else:
         u, steps, converged, final, warm_info, forward = _fit_least_squares(
             forward, u0, data, solver, max_steps, rtol, atol, bar, auto_chunks,
-            subsample, jacobian,
+            subsample, jacobian, absolute,
         )  # fmt: skip
     if bar:
         bar.close()
@@ -366,14 +369,14 @@ _WARM_PER_PARAMETER, _WARM_MIN, _WARM_FACTOR = 64, 128, 4
 # 29 s) to move 1.5e-3, and the iterations on every row the same steps after
 # it.
 _WARM_TOL = 1e-3
-# The iterations also stop where the Gauss-Newton step left is below this many
-# standard errors (`diffimpact._lsq._standard_errors_left`): the warm start's
-# own (of its subsample, sqrt(n / rows) times every row's), and every row's.
-# That last step is taken (without a new evaluation), so the estimate lands
-# within theta times it of the optimum, theta the contraction of the steps:
-# on 2,000 noisy planar impacts with four free parameters the steps on every
-# row were 7.7, 0.055 and 0.0085 standard errors (theta 0.15), so the fit
-# stops after the second, 1e-2 standard errors from the optimum.  The
+# The iterations also stop at a point that its Gauss-Newton step and the
+# contraction of the last two steps place within this many standard errors
+# of the optimum (`diffimpact._lsq._lands_within`): the warm start's own
+# standard errors (of its subsample, sqrt(n / rows) times every row's), and
+# every row's.  On 2,000 noisy planar impacts with four free parameters the
+# steps on every row were 7.7, 0.055 and 0.0085 standard errors: the fit
+# stops at the second point (contraction 0.007), 0.055 standard errors from
+# the optimum.  The
 # tolerances in the parameters alone kept that fit (a centre-of-mass offset
 # near 0) iterating for five more evaluations of every row (53 s) at a few
 # 1e-3 standard errors a step.
@@ -412,7 +415,7 @@ def _check_subsample(subsample) -> None:
 
 def _fit_least_squares(
     problem, u0, data, solver, max_steps, rtol, atol, bar, auto_chunks, subsample,
-    jacobian,
+    jacobian, absolute,
 ):  # fmt: skip
     """`fit` with Gauss-Newton or Levenberg-Marquardt (`diffimpact._lsq`):
     the rows checked at the start in blocks (one per core), sorted by their
@@ -428,7 +431,7 @@ def _fit_least_squares(
     blocks = RowBlocks(problem, np.arange(n), n_blocks)
     compiling = None
     if jacobian == "auto":
-        jacobian = "differences" if problem.chunk_size is not None else "forward-mode"
+        jacobian = _auto_jacobian(problem)
     if problem.chunk_size is not None and jacobian == "forward-mode":
         compiling = blocks.compile_jacobian(jnp.asarray(u0))
     try:
@@ -467,7 +470,7 @@ def _fit_least_squares(
                     u, done, warm_converged, _, _ = least_squares(
                         warm, u, solver, max_steps, max(rtol, _WARM_TOL),
                         max(atol, _WARM_TOL), bar, update_jacobian=math.inf,
-                        within=_WITHIN,
+                        within=_WITHIN, absolute=absolute,
                     )  # fmt: skip
                 finally:
                     warm.close()
@@ -485,12 +488,13 @@ def _fit_least_squares(
                 u, more, converged, final, rose = least_squares(
                     blocks, u, "gauss-newton", max(max_steps - done, 1), rtol,
                     atol, bar, first=done, stop_if_rising=True,
-                    update_jacobian=_REACH, within=_WITHIN,
+                    update_jacobian=_REACH, within=_WITHIN, absolute=absolute,
                 )  # fmt: skip
             if not warm_converged or rose:
                 u, extra, converged, final2, _ = least_squares(
                     blocks, u, solver, max(max_steps - done - more, 1), rtol,
                     atol, bar, first=done + more, within=_WITHIN,
+                    absolute=absolute,
                 )  # fmt: skip
                 final = final2 if final2 is not None else final
                 more += extra
@@ -499,6 +503,18 @@ def _fit_least_squares(
         if compiling is not None:  # (a fit stopped early: see compile_jacobian)
             compiling.join()
     return u, done + more, converged, final, warm_info, problem
+
+
+def _auto_jacobian(problem) -> str:
+    """``jacobian="auto"``: forward differences for rows in chunks on a CPU,
+    unless a free parameter has no scale for the step (unbounded and started
+    at 0: its unconstrained ``u`` is then in the parameter's own unit, and a
+    step of 1e-5 of that unit may be all truncation or all rounding)."""
+    unscaled = any(t.kind == "affine" and t.start == 0.0 for t in problem.transforms)
+    cpu = jax.default_backend() == "cpu"
+    if problem.chunk_size is not None and cpu and not unscaled:
+        return "differences"
+    return "forward-mode"
 
 
 def _subsample_rows(subsample, n: int, p: int, chunk: int | None) -> int | None:

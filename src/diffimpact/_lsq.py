@@ -56,11 +56,15 @@ _STALL = 4
 # right).
 _DIVERGED, _FD_STEP = 10.0, 1e-4
 # The step of forward differences (``jacobian="differences"``), in the
-# unconstrained parameters (O(1) by construction, `diffimpact._transforms`):
+# unconstrained parameters (O(1) by construction, `diffimpact._transforms`:
+# a relative step of 1e-5, or 1e-5 of the start value of an unbounded one):
 # on 128 planar impacts the columns agreed with forward mode to 5e-6 (median)
 # and 7e-5 (largest) of their RMS at 1e-5 in log mu and log S_y and 1e-7 m in
 # the centre of mass, against 4e-5 / 7e-4 at 10 times those (truncation) and
-# 1.7e-5 / 9e-4 at a tenth (rounding).
+# 1.7e-5 / 9e-4 at a tenth (rounding); the benchmark's centre of mass,
+# started at 4 and 1 mm, gets steps of 4e-8 and 1e-8 m (at 1e-8 m: 6e-6 /
+# 3e-4).  An unbounded parameter started at 0 has no scale: `fit` then uses
+# forward mode.
 _FD_FORWARD = 1e-5
 # ... in a warm start, whose Jacobians only steer it towards the optimum of all
 # rows (whose Jacobian is recomputed there): a wider limit, which still catches
@@ -316,11 +320,19 @@ class RowBlocks:
         r = np.array(weighted(pred, codes, measured, sigma, self.mask))
         success = RESULTS.successful._value
         cols = [(out[0] - pred) / _FD_FORWARD for out in outs[1:]]
-        jac = np.where(self.mask[..., None], np.stack(cols, -1) / sigma[..., None], 0.0)
+        ok = codes == success
+        # (a row failing at u has only its sentinel residuals: no derivative)
+        use = self.mask[..., None] & ok[:, None, None]
+        jac = np.where(use, np.stack(cols, -1) / sigma[..., None], 0.0)
         shifted_ok = np.all([out[1] == success for out in outs[1:]], axis=0)
-        bad = np.nonzero(self.mask.any(axis=1) & (codes == success) & ~shifted_ok)[0]
+        bad = np.nonzero(self.mask.any(axis=1) & ok & ~shifted_ok)[0]
         if bad.size:
+            # forward mode for these rows, checked as every forward-mode row
+            # is (a row at the edge of failing is where tangents diverge)
             jac[bad] = self._rows_jacobian(u, bad, "forward-mode")[bad]
+            diverged = np.intersect1d(_diverged_rows(jac, self.mask), bad)
+            if diverged.size:
+                jac[diverged] = self._differences(u, diverged)
         return r, jac
 
     def _rows_jacobian(self, u, rows, jacobian=None):
@@ -482,7 +494,7 @@ def _settled(sizes) -> bool:
     return theta < 0.5 and theta / (1.0 - theta) * sizes[-1] <= 1.0
 
 
-def _standard_errors_left(jac, r, newton, mask) -> float:
+def _standard_errors_left(jac, r, newton, mask, absolute=False) -> float:
     """The length of the Gauss-Newton step ``newton`` from a point in units of
     the standard errors there: its norm in the metric of the covariance
     ``s^2 (J^T J)^-1``, i.e. ``|J newton| / s`` with ``s^2 = |r|^2 / dof`` (the
@@ -503,14 +515,28 @@ def _standard_errors_left(jac, r, newton, mask) -> float:
     if dof <= 0:
         return math.inf
     s = math.sqrt(float(r @ r) / dof)
+    if absolute:  # the errors `fit` reports use s = 1; the stricter of the two
+        s = min(s, 1.0)
     if s == 0.0:
         return math.inf
     return float(np.linalg.norm(jac @ newton)) / s
 
 
+def _lands_within(errors, within) -> bool:
+    """Whether the point whose Gauss-Newton step is ``errors[-1]`` standard
+    errors long lies within ``within`` of them from the optimum: with the
+    contraction ``theta`` of the last two steps (below 1/2), the steps still
+    to come sum to at most ``1 / (1 - theta)`` times it.  A first step, of
+    unknown contraction, never does."""
+    if len(errors) < 2 or not errors[-2] > 0.0:
+        return False
+    theta = errors[-1] / errors[-2]
+    return theta < 0.5 and errors[-1] <= within * (1.0 - theta)
+
+
 def least_squares(blocks: RowBlocks, u0, solver_name, max_steps, rtol, atol, bar,
                   first=0, stop_if_rising=False, update_jacobian=None,
-                  within=None):  # fmt: skip
+                  within=None, absolute=False):  # fmt: skip
     """optimistix's Gauss-Newton or Levenberg-Marquardt from ``u0``, one
     compiled step at a time (so that the command line can show progress).
     Returns ``(u, steps, converged, (r, J, d, blocked), rose)``: the last
@@ -531,9 +557,12 @@ def least_squares(blocks: RowBlocks, u0, solver_name, max_steps, rtol, atol, bar
     `_REACH` for every row (the points where the covariance is computed
     stay within 2 % of a full evaluation) and no limit for a warm start
     (whose Jacobians only steer it).
-    ``within``: None, or a number ``tau``: also stationary where the
-    Gauss-Newton step from the point is below ``tau`` standard errors
-    (`_standard_errors_left`), whatever its size in ``rtol``/``atol``."""
+    ``within``: None, or a number ``tau``: also stationary at a point within
+    ``tau`` standard errors of the optimum by its Gauss-Newton step and the
+    contraction of the last two such steps (`_standard_errors_left`,
+    `_lands_within`; ``absolute``: the sigmas are the measurements' own, as
+    `fit` reports), whatever the step's size in ``rtol``/``atol``; the
+    point is kept, not moved by the step."""
     if solver_name == "levenberg-marquardt":
         solver = optx.LevenbergMarquardt(rtol=rtol, atol=atol)
     else:
@@ -548,6 +577,7 @@ def least_squares(blocks: RowBlocks, u0, solver_name, max_steps, rtol, atol, bar
     steps, converged, final = 0, False, None
     best, stalled, cost = math.inf, 0, math.inf
     sizes = []  # the Gauss-Newton steps from the accepted points, scaled
+    errors = []  # ... in standard errors
     blocked = np.zeros(0, int)  # rows failed at the trials since acceptance
     while steps < max_steps:
         done, result = _terminate(solver, _known_fn, u, evaluated, options, state, tags)
@@ -599,17 +629,12 @@ def least_squares(blocks: RowBlocks, u0, solver_name, max_steps, rtol, atol, bar
             scaled = float(
                 np.max(np.abs(newton) / (atol + rtol * np.abs(np.asarray(u))))
             )
+            left = _standard_errors_left(jac, r, newton, blocks.mask, absolute)
             if int(state.num_steps_since_acceptance) == 0:
                 sizes.append(scaled)
-            close = within is not None and (
-                _standard_errors_left(jac, r, newton, blocks.mask) <= within
-            )
-            # A step below the standard errors but long in the parameters
-            # goes along a combination the data barely determine (its error
-            # is huge): not taken, the linear model does not reach there (a
-            # friction coefficient the data cannot see went to 0 in one step).
-            short = np.max(np.abs(newton)) <= _REACH
-            if scaled <= 1.0 or _settled(sizes) or (close and short):
+                errors.append(left)
+            close = within is not None and _lands_within(errors, within)
+            if scaled <= 1.0 or _settled(sizes):
                 # That last step is taken without a new evaluation: the point
                 # moves to within the tolerance of the optimum, and the
                 # residuals follow to first order (an error of order |J|
@@ -619,6 +644,11 @@ def least_squares(blocks: RowBlocks, u0, solver_name, max_steps, rtol, atol, bar
                 converged = not blocked.size
                 break
             if close:
+                # The point itself, whose residuals and Jacobian are known
+                # (not moved by the step: a step below the standard errors
+                # may still be long in the parameters, along a combination
+                # the data barely determine, where the linear model does not
+                # reach; and the predictions reported stay the model's own).
                 converged = not blocked.size
                 break
         # At the optimum of a noisy problem the residuals carry the solver's
