@@ -314,10 +314,9 @@ class RowBlocks:
         u = np.asarray(u, float)
         points = [u] + [u + _FD_FORWARD * e for e in np.eye(len(u))]
         outs = self._map_points(_predictions, [jnp.asarray(x) for x in points], True)
-        p = self.problem
-        measured, sigma = np.asarray(p.measured), np.asarray(p.sigma)
         pred, codes, _ = outs[0]
-        r = np.array(weighted(pred, codes, measured, sigma, self.mask))
+        r = self._weighted(pred, codes)
+        sigma = np.asarray(self.problem.sigma)
         success = RESULTS.successful._value
         cols = [(out[0] - pred) / _FD_FORWARD for out in outs[1:]]
         ok = codes == success
@@ -334,6 +333,13 @@ class RowBlocks:
             if diverged.size:
                 jac[diverged] = self._differences(u, diverged)
         return r, jac
+
+    def _weighted(self, pred, codes):
+        """The weighted residuals ``(n, k)`` of predictions ``(n, k)`` with
+        their result codes, for the fitted rows (`weighted`)."""
+        p = self.problem
+        measured, sigma = np.asarray(p.measured), np.asarray(p.sigma)
+        return np.array(weighted(pred, codes, measured, sigma, self.mask))
 
     def _rows_jacobian(self, u, rows, jacobian=None):
         """The Jacobian ``(n, k, p)`` at ``u`` of `rows` alone (the others'
@@ -402,9 +408,7 @@ class RowBlocks:
         contracting)."""
         du = np.asarray(u, float) - np.asarray(base_u, float)
         pred, codes, _ = self.predictions(u)
-        p = self.problem
-        measured, sigma = np.asarray(p.measured), np.asarray(p.sigma)
-        r = np.asarray(weighted(pred, codes, measured, sigma, self.mask))
+        r = self._weighted(pred, codes)
         jac = np.asarray(base.jacobian).reshape(*r.shape, -1).copy()
         fitted_r = r[self.mask]
         if np.any(fitted_r == _FAILED_RESIDUAL):
@@ -629,10 +633,12 @@ def least_squares(blocks: RowBlocks, u0, solver_name, max_steps, rtol, atol, bar
             scaled = float(
                 np.max(np.abs(newton) / (atol + rtol * np.abs(np.asarray(u))))
             )
-            left = _standard_errors_left(jac, r, newton, blocks.mask, absolute)
             if int(state.num_steps_since_acceptance) == 0:
                 sizes.append(scaled)
-                errors.append(left)
+                if within is not None:
+                    errors.append(
+                        _standard_errors_left(jac, r, newton, blocks.mask, absolute)
+                    )
             close = within is not None and _lands_within(errors, within)
             if scaled <= 1.0 or _settled(sizes):
                 # That last step is taken without a new evaluation: the point
