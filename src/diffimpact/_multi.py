@@ -58,7 +58,6 @@ import diffrax
 import equinox as eqx
 import jax
 import jax.numpy as jnp
-import optimistix as optx
 
 from ._checks import (
     as_float,
@@ -73,9 +72,15 @@ from ._laws._base import AbstractNormalLaw
 from ._laws._friction import Friction
 from ._result import finish, raise_if_failed
 from ._solver import stored_steps_adjoint
-from ._span_field import _setup, _Span
+from ._span_field import _setup, _Span, span_norm, without_probe
 from ._span_impacts import _impacts_of_contact
-from ._span_types import SpanHistory, SpanImpacts, SpanResult, SpanSettings
+from ._span_types import (
+    SpanHistory,
+    SpanImpacts,
+    SpanResult,
+    SpanSettings,
+    probe_rtol,
+)
 from .scenes._mechanisms import AbstractMechanism
 
 
@@ -172,7 +177,11 @@ def _simulate_span(scene, law, t_span, friction, settings, n_save, throw):
             pcoeff=settings.pcoeff,
             icoeff=settings.icoeff,
             factormax=settings.factormax,
-            norm=optx.rms_norm,
+            norm=span_norm(
+                settings,
+                0 if y0.probe is None else y0.probe.size,
+                probe_rtol(settings, p.hysteretic),
+            ),
         ),
         saveat=diffrax.SaveAt(subs=subs),
         max_steps=settings.max_steps,
@@ -201,14 +210,14 @@ def _simulate_span(scene, law, t_span, friction, settings, n_save, throw):
         """``fn``, d/dt and d^2/dt^2 along the solution [per s]."""
 
         def first(yy):
-            return jax.jvp(fn, (yy,), (p.field(tau, yy),))[1]
+            return jax.jvp(fn, (yy,), (p.rates(tau, yy),))[1]
 
         second = jax.jvp(first, (y,), (dy,))[1]
         return fn(y), first(y) / p.time, second / p.time**2
 
     def local(k, rows):
-        tau, y = taus_safe[rows], _rows(ys, rows)
-        dy = jax.vmap(p.field)(tau, y)
+        tau, y = taus_safe[rows], without_probe(_rows(ys, rows))
+        dy = jax.vmap(p.rates)(tau, y)
         out = jax.vmap(lambda a, b, c: triple(probes, a, b, c))(tau, y, dy)
         qdd = dy.q_dot * p.q_scale / p.time**2
         cols = (k, nc + k, 2 * nc + k)

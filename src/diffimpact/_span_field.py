@@ -7,11 +7,13 @@ from __future__ import annotations
 import equinox as eqx
 import jax
 import jax.numpy as jnp
+import optimistix as optx
+from jax.flatten_util import ravel_pytree
 from jaxtyping import Array
 
 from ._laws._dissipative import _AbstractDampedHertz
 from ._smooth import step
-from ._span_types import SpanSettings
+from ._span_types import SpanSettings, probe_rtol
 from .scenes._mechanisms import AbstractMechanism
 
 # Bound on the scaled states the vector field reads (see `_Span.field`).
@@ -33,6 +35,8 @@ class SpanState(eqx.Module):
     # approach (`_history_rate`), the law sees max(d_m, 0)
     max_deflection: Array | None = None
     onset: Array | None = None  # (nc,) contact indicators (`_Span.onset_rate`)
+    # a tangent of the other states, flat (`_Span.probe_rate`)
+    probe: Array | None = None
 
 
 class _Span(eqx.Module):
@@ -115,6 +119,29 @@ class _Span(eqx.Module):
         return jnp.linalg.solve(mass, rhs), applied
 
     def field(self, tau, y: SpanState) -> SpanState:
+        rates = self.rates(tau, y)
+        if y.probe is None:
+            return rates
+        return eqx.tree_at(
+            lambda r: r.probe, rates, self.probe_rate(tau, y), is_leaf=_is_none
+        )
+
+    def probe_rate(self, tau, y: SpanState):
+        """Rate of the probe tangent: the directional derivative of the other
+        states' rates along it, ``J(y) probe``.  Only the step-size control
+        reads it (`SpanSettings.tangent_rtol`), so it is computed on
+        stopped gradients: the adjoint pays nothing for it."""
+        core = _core(jax.lax.stop_gradient(y))
+        flat, unravel = ravel_pytree(core)
+
+        def rates(v):
+            return ravel_pytree(_core(self.rates(tau, unravel(v))))[0]
+
+        probe = jax.lax.stop_gradient(y.probe)
+        return jax.jvp(rates, (flat,), (probe,))[1]
+
+    def rates(self, tau, y: SpanState) -> SpanState:
+        """The rates of every state but the probe's."""
         t = tau * self.time
 
         # A rejected trial stage of the adaptive solver can hold overflowed or
@@ -155,9 +182,7 @@ class _Span(eqx.Module):
                 else None
             ),
             onset=(
-                self.onset_rate(y, f_n, d, v_n, d_m)
-                if self.settings.onset_step is not None
-                else None
+                self.onset_rate(y, f_n, d, v_n, d_m) if y.onset is not None else None
             ),
         )
 
@@ -219,6 +244,22 @@ class _Span(eqx.Module):
     def kinetic(self, q, q_dot):
         v = jax.jvp(self.scene.positions, (q,), (q_dot,))[1]
         return 0.5 * jnp.sum(self.scene.inertia_weights() * v**2)
+
+
+def _is_none(x):
+    return x is None
+
+
+def without_probe(y: SpanState) -> SpanState:
+    """``y`` with no probe tangent (for what reads the states, not the
+    step-size control)."""
+    return eqx.tree_at(lambda s: s.probe, y, None, is_leaf=_is_none)
+
+
+def _core(y: SpanState) -> SpanState:
+    """The states the probe is a tangent of: all but the contact indicators
+    (which never feed back) and the probe itself."""
+    return eqx.tree_at(lambda s: (s.onset, s.probe), y, (None, None), is_leaf=_is_none)
 
 
 def _history_rate(p: _Span, d, v, d_m):
@@ -307,4 +348,32 @@ def _setup(scene, law, friction, settings):
         max_deflection=d0 / length if bound.hysteretic else None,
         onset=zeros if settings.onset_step is not None else None,
     )
+    if probe_rtol(settings, bound.hysteretic) is not None:
+        # The probe: a unit perturbation of every coordinate and velocity
+        # (scaled), none of the accumulated states.
+        core = _core(y0)
+        direction = eqx.tree_at(
+            lambda s: (s.q, s.q_dot),
+            jax.tree.map(jnp.zeros_like, core),
+            (jnp.ones_like(y0.q), jnp.ones_like(y0.q_dot)),
+        )
+        y0 = eqx.tree_at(
+            lambda s: s.probe, y0, ravel_pytree(direction)[0], is_leaf=_is_none
+        )
     return p, y0
+
+
+def span_norm(settings: SpanSettings, size: int, tangent_rtol: float | None):
+    """The step-size controller's norm of a flat state error whose last
+    ``size`` entries are the probe tangent's: the RMS norm of the others,
+    or, where larger, the probe's scaled so that it is held to
+    ``max(rtol, tangent_rtol)`` (the control of the state itself is what it
+    is without a probe)."""
+    if tangent_rtol is None:
+        return optx.rms_norm
+    weight = min(1.0, settings.rtol / tangent_rtol)
+
+    def norm(x):
+        return jnp.maximum(optx.rms_norm(x[:-size]), weight * optx.rms_norm(x[-size:]))
+
+    return norm
