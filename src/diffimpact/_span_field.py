@@ -216,7 +216,11 @@ class _Span(eqx.Module):
         ``max_damping = 0.1``), see tests/test_multi.py.  The values hardly
         change, but the derivative of the discrete solve with
         respect to anything that moves the instant of contact (a drop height,
-        a clearance) converges: see `SpanSettings`.  The decay ``-z``
+        a clearance) converges: see `SpanSettings`.  For a hysteretic law the
+        localisation is not enough (the state's tangents change fast across
+        the smooth 10 % drop of the elasto-plastic switch and near the
+        singular Jacobian of ``d^(3/2)``, where the state does not): the
+        probe tangent (`probe_rate`) sizes those steps.  The decay ``-z``
         keeps ``z = O(w)`` so that ``rtol |z|`` never loosens the control."""
         s = self.settings
         step_size = s.switch_step if self.hysteretic else s.onset_step
