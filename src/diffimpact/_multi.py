@@ -180,7 +180,7 @@ def _simulate_span(scene, law, t_span, friction, settings, n_save, throw):
             norm=span_norm(
                 settings,
                 0 if y0.probe is None else y0.probe.size,
-                probe_rtol(settings, p.hysteretic),
+                probe_rtol(settings, p.bound),
             ),
         ),
         saveat=diffrax.SaveAt(subs=subs),

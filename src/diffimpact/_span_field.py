@@ -209,18 +209,18 @@ class _Span(eqx.Module):
         benchmarks/RESULTS.md).
         The switch is where the force (not the penetration) leaves zero: the
         ADAMS law's ``max(0, k g^e + c(g) g_dot)`` lets go at ``g > 0`` on the
-        way out (a kink, C^0, in the force).  Known limit: the gradient with
-        respect to anything that moves that release point converges slowly
-        with the tolerance (the bar's first-bounce loss w.r.t. the drop height:
-        1.6e-2 at rtol 1e-11, 4.6e-3 at 1e-12; 3e-5 without the release, i.e.
-        ``max_damping = 0.1``), see tests/test_multi.py.  The values hardly
+        way out (a kink, C^0, in the force).  Localised alone, the gradient
+        with respect to anything that moves that release point converged
+        slowly with the tolerance (the bar's first-bounce loss w.r.t. the drop
+        height: 1.6e-2 at rtol 1e-11, 4.6e-3 at 1e-12); the probe tangent
+        (`probe_rate`) brings it to 8e-7, see tests/test_multi.py.  The values hardly
         change, but the derivative of the discrete solve with
         respect to anything that moves the instant of contact (a drop height,
         a clearance) converges: see `SpanSettings`.  For a hysteretic law the
-        localisation is not enough (the state's tangents change fast across
-        the smooth 10 % drop of the elasto-plastic switch and near the
+        localisation is not enough either (the state's tangents change fast
+        across the smooth 10 % drop of the elasto-plastic switch and near the
         singular Jacobian of ``d^(3/2)``, where the state does not): the
-        probe tangent (`probe_rate`) sizes those steps.  The decay ``-z``
+        probe tangent sizes those steps too.  The decay ``-z``
         keeps ``z = O(w)`` so that ``rtol |z|`` never loosens the control."""
         s = self.settings
         step_size = s.switch_step if self.hysteretic else s.onset_step
@@ -352,7 +352,7 @@ def _setup(scene, law, friction, settings):
         max_deflection=d0 / length if bound.hysteretic else None,
         onset=zeros if settings.onset_step is not None else None,
     )
-    if probe_rtol(settings, bound.hysteretic) is not None:
+    if probe_rtol(settings, bound) is not None:
         # The probe: a unit perturbation of every coordinate and velocity
         # (scaled), none of the accumulated states.
         core = _core(y0)

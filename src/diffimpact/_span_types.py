@@ -52,9 +52,10 @@ class SpanSettings(eqx.Module):
       at 1e-9, 1.1e-2 at 1e-7.  It costs about 1.6x the steps
       of 1e-3 (benchmarks/RESULTS.md).
     - `tangent_rtol`: relative tolerance of a probe tangent in the step-size
-      control: ``"auto"`` (default) 1e-9 for a hysteretic law
-      (Jackson-Green) and no probe for the others, a number, or None (no
-      probe).  The adjoint differentiates the solve on its
+      control: ``"auto"`` (default) 1e-9 for a law whose force switches with
+      the motion (Jackson-Green's unloading, the ADAMS law's release before
+      ``d = 0``) and no probe for an elastic law (Hertz), a number, or None
+      (no probe).  The adjoint differentiates the solve on its
       step grid, and the controller sizes the steps by the error of the state
       alone; where the law's derivatives are steep or singular while the
       state is not (a Jackson-Green force drops by 10 % across
@@ -69,9 +70,11 @@ class SpanSettings(eqx.Module):
       for 1.4x the steps (2e-6 at 1e-7, 1.15x; 2e-7 at 1e-11, 8x).  Values
       alone do not need it: ``tangent_rtol=None`` saves those steps and the
       tangent's evaluation (a 0.335 s JG bar span: 70 ms instead of 330 ms;
-      its gradient 1.15 s with the probe, benchmarks/RESULTS.md).  The other
-      laws' span gradients are accurate to ~3e-5 without one (Hertz, ADAMS
-      away from the release kink).
+      its gradient 1.15 s with the probe, benchmarks/RESULTS.md).  The
+      ADAMS law's release kink (``max(0, ...)`` at ``g > 0``) is the same
+      kind of place: the bar's first bounce w.r.t. the drop height went from
+      2.9e-3 (loss) and 7.4e-4 (spin) off to 8e-7 and 3e-7 with it.  Hertz's
+      span gradients are within 3e-5 without one.
     - `adjoint`: as in `SolverSettings`.
     """
 
@@ -116,11 +119,15 @@ class SpanSettings(eqx.Module):
                 )
 
 
-def probe_rtol(settings: SpanSettings, hysteretic: bool) -> float | None:
+def probe_rtol(settings: SpanSettings, bound) -> float | None:
     """The probe tangent's tolerance of a solve (`SpanSettings.tangent_rtol`
-    resolved for its law), or None for no probe."""
+    resolved for its bound law), or None for no probe.  ``"auto"`` gives one
+    to the laws whose force switches with the motion (a hysteretic law's
+    unloading, a rate-dependent law's release before ``d = 0``) and none to
+    an elastic law, whose span gradients are within 3e-5 without one."""
     if settings.tangent_rtol == "auto":
-        return _AUTO_TANGENT_RTOL if hysteretic else None
+        motion = bound.hysteretic or bound.rate_dependent
+        return _AUTO_TANGENT_RTOL if motion else None
     return settings.tangent_rtol
 
 
