@@ -35,7 +35,7 @@ class SpanState(eqx.Module):
     # approach (`_history_rate`), the law sees max(d_m, 0)
     max_deflection: Array | None = None
     onset: Array | None = None  # (nc,) contact indicators (`_Span.onset_rate`)
-    # a tangent of the other states, flat (`_Span.probe_rate`)
+    # a tangent of the other states, flat (`_Span.field`)
     probe: Array | None = None
 
 
@@ -119,26 +119,31 @@ class _Span(eqx.Module):
         return jnp.linalg.solve(mass, rhs), applied
 
     def field(self, tau, y: SpanState) -> SpanState:
-        rates = self.rates(tau, y)
         if y.probe is None:
-            return rates
-        return eqx.tree_at(
-            lambda r: r.probe, rates, self.probe_rate(tau, y), is_leaf=_is_none
-        )
-
-    def probe_rate(self, tau, y: SpanState):
-        """Rate of the probe tangent: the directional derivative of the other
-        states' rates along it, ``J(y) probe``.  Only the step-size control
-        reads it (`SpanSettings.tangent_rtol`), so it is computed on
-        stopped gradients: the adjoint pays nothing for it."""
-        core = _core(jax.lax.stop_gradient(y))
-        flat, unravel = ravel_pytree(core)
+            return self.rates(tau, y)
+        # The rates and the probe's rate, ``J(y) probe``, from one JVP (not
+        # the rates again inside it).  Only the step-size control reads the
+        # probe (`SpanSettings.tangent_rtol`): its rate is a stopped gradient,
+        # so the adjoint pays nothing for it.
+        flat, unravel = ravel_pytree(_core(y))
 
         def rates(v):
-            return ravel_pytree(_core(self.rates(tau, unravel(v))))[0]
+            state = eqx.tree_at(
+                lambda s: s.onset, unravel(v), y.onset, is_leaf=_is_none
+            )
+            out = self.rates(tau, state)
+            return ravel_pytree(_core(out))[0], out.onset
 
-        probe = jax.lax.stop_gradient(y.probe)
-        return jax.jvp(rates, (flat,), (probe,))[1]
+        (core, onset), (tangent, _) = jax.jvp(
+            rates, (flat,), (jax.lax.stop_gradient(y.probe),)
+        )
+        out = unravel(core)
+        return eqx.tree_at(
+            lambda r: (r.onset, r.probe),
+            out,
+            (onset, jax.lax.stop_gradient(tangent)),
+            is_leaf=_is_none,
+        )
 
     def rates(self, tau, y: SpanState) -> SpanState:
         """The rates of every state but the probe's."""
@@ -213,7 +218,7 @@ class _Span(eqx.Module):
         with respect to anything that moves that release point converged
         slowly with the tolerance (the bar's first-bounce loss w.r.t. the drop
         height: 1.6e-2 at rtol 1e-11, 4.6e-3 at 1e-12); the probe tangent
-        (`probe_rate`) brings it to 8e-7, see tests/test_multi.py.  The values hardly
+        (`field`) brings it to 8e-7, see tests/test_multi.py.  The values hardly
         change, but the derivative of the discrete solve with
         respect to anything that moves the instant of contact (a drop height,
         a clearance) converges: see `SpanSettings`.  For a hysteretic law the

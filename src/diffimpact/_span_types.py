@@ -62,15 +62,15 @@ class SpanSettings(eqx.Module):
       ``phase_width`` at ``d* = 1.9``; the Jacobian of ``d^(3/2)`` is
       singular where a contact opens or lets go) a step can be accurate for
       the state and not for its derivatives.  So the solve also carries a
-      tangent of the state (`_Span.probe_rate`, itself never differentiated)
+      tangent of the state (`_Span.field`, itself never differentiated)
       whose local error the controller keeps below ``max(rtol,
       tangent_rtol)`` (relative, with ``atol``).  Measured, JG bar, first
       impact from 0.25-0.27 m, d/d(height) against central differences of a
       1e-13 solve: 2.2e-5 .. 1.7e-4 without a probe; 9e-8 with it at 1e-9,
       for 1.4x the steps (2e-6 at 1e-7, 1.15x; 2e-7 at 1e-11, 8x).  Values
       alone do not need it: ``tangent_rtol=None`` saves those steps and the
-      tangent's evaluation (a 0.335 s JG bar span: 70 ms instead of 330 ms;
-      its gradient 1.15 s with the probe, benchmarks/RESULTS.md).  The
+      tangent's evaluation (a 0.335 s JG bar span: 73 ms instead of 244 ms;
+      its gradient 0.33 s instead of 0.68 s, benchmarks/RESULTS.md).  The
       ADAMS law's release kink (``max(0, ...)`` at ``g > 0``) is the same
       kind of place: the bar's first bounce w.r.t. the drop height went from
       2.9e-3 (loss) and 7.4e-4 (spin) off to 8e-7 and 3e-7 with it.  Hertz's
