@@ -54,6 +54,12 @@ class RESULTS(eqx.Enumeration):
         "than the approach, or a permanent deformation outside [0, d_max]); "
         "check the law's constants and the SolverSettings"
     )
+    annuli_outgrown = (
+        "diffimpact: the contact grew deeper than the partial-slip springs "
+        "reach (Friction(compliant='mindlin-deresiewicz'): the interference "
+        "passed Friction.reach x d_ref, the Hertz estimate); raise "
+        "Friction.reach, e.g. to 4"
+    )
     precision_lost = (
         "diffimpact: float32 lost the quadrature's precision (a non-finite "
         "output); enable float64 with jax.config.update('jax_enable_x64', True) "
@@ -93,6 +99,7 @@ _ERRORS = {
     "max_steps_reached": StepBudgetError,
     "solver_failed": SolverError,
     "precision_lost": SolverError,
+    "annuli_outgrown": OutsideModelError,
     "unphysical": SimulationError,
 }
 

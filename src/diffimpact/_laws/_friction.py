@@ -43,6 +43,9 @@ _SPRING_CORNER = 1e-3
 
 # How a tangentially rigid contact is held at rest (`Friction.stick`).
 STICK_LAWS = ("hold", "slope")
+# Tangential compliance (`Friction.compliant`): Mindlin's spring (no
+# micro-slip), or Mindlin & Deresiewicz's partial slip.
+COMPLIANCE = ("mindlin", "mindlin-deresiewicz")
 
 
 def _ratio(force, capacity):
@@ -65,6 +68,22 @@ def _saturate(z, delta=_HOLD_CORNER):
     z = jnp.clip(z, -_HOLD_CLIP, _HOLD_CLIP)  # (flat beyond for delta <= 0.1)
     return z - delta * (
         jax.nn.softplus((z - 1.0) / delta) - jax.nn.softplus((-z - 1.0) / delta)
+    )
+
+
+def _compliance(value):
+    """``Friction.compliant`` in its stored form: False, ``"mindlin"`` (also
+    ``True``) or ``"mindlin-deresiewicz"``."""
+    if value is False or value is None:
+        return False
+    if value is True:
+        return "mindlin"
+    if isinstance(value, str) and value in COMPLIANCE:
+        return value
+    raise ValueError(
+        "`Friction.compliant` must be False (tangentially rigid), True or "
+        "'mindlin' (Mindlin's spring, no micro-slip) or 'mindlin-deresiewicz' "
+        f"(partial slip), got {value!r}"
     )
 
 
@@ -164,8 +183,10 @@ class Friction(AbstractValidated):
     mu_v: Array | None
     mu_s: Array | None
     breakaway_slip: float | None = eqx.field(static=True)
-    compliant: bool = eqx.field(static=True)
+    compliant: bool | str = eqx.field(static=True)
     stick: str = eqx.field(static=True)
+    annuli: int = eqx.field(static=True)
+    reach: float = eqx.field(static=True)
 
     def __init__(
         self,
@@ -177,6 +198,8 @@ class Friction(AbstractValidated):
         breakaway_slip=None,
         compliant=False,
         stick="hold",
+        annuli=32,
+        reach=2.0,
     ):
         if (mu is None) == (mu_k is None):
             raise TypeError(
@@ -187,8 +210,10 @@ class Friction(AbstractValidated):
         self.mu_v = None if mu_v is None else as_float(mu_v)
         self.mu_s = None if mu_s is None else as_float(mu_s)
         self.breakaway_slip = None if breakaway_slip is None else float(breakaway_slip)
-        self.compliant = bool(compliant)
+        self.compliant = _compliance(compliant)
         self.stick = stick
+        self.annuli = annuli
+        self.reach = reach
 
     def _checks(self):
         out = [nonnegative(self.mu, "Friction.mu (kinetic coefficient mu_k)")]
@@ -222,11 +247,39 @@ class Friction(AbstractValidated):
                 "`Friction(compliant=True)` takes one coefficient `mu` (the "
                 "Mindlin spring is capped at mu F_n); `mu_s` is not supported with it"
             )
+        n = self.annuli
+        if isinstance(n, bool) or not isinstance(n, int) or n < 2:
+            raise ValueError(
+                f"`Friction.annuli` must be an integer >= 2 (springs of the "
+                f"partial-slip contact), got {n!r}"
+            )
+        reach = self.reach
+        if (
+            isinstance(reach, bool)
+            or not isinstance(reach, (int, float))
+            or not (math.isfinite(reach) and reach > 1.0)
+        ):
+            raise ValueError(
+                "`Friction.reach` must be a finite number > 1 (the deepest "
+                "interference the partial-slip springs cover, in units of the "
+                f"Hertz estimate d_ref), got {reach!r}"
+            )
+        if not self.partial_slip and (n != 32 or reach != 2.0):
+            raise ValueError(
+                "`Friction.annuli` and `Friction.reach` set the springs of the "
+                "partial-slip contact: they apply with "
+                "compliant='mindlin-deresiewicz' only"
+            )
         x_s = self.breakaway_slip
         if x_s is not None and not (math.isfinite(x_s) and x_s > 0):
             raise ValueError(
                 "`Friction.breakaway_slip` must be a finite number > 0 (slip widths)"
             )
+
+    @property
+    def partial_slip(self) -> bool:
+        """Whether the contact is Mindlin & Deresiewicz's (partial slip)."""
+        return self.compliant == "mindlin-deresiewicz"
 
     @property
     def mu_k(self):
