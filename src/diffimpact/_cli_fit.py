@@ -49,8 +49,13 @@ def register(sub) -> None:
     )
     p.add_argument(
         "--compliant",
-        action="store_true",
-        help="Mindlin tangential compliance at the contact (Friction(compliant=True))",
+        nargs="?",
+        const="mindlin",
+        default=None,
+        choices=["mindlin", "mindlin-deresiewicz"],
+        help="tangential compliance at the contact: 'mindlin' (the default "
+        "with the bare flag; Mindlin's spring, no micro-slip) or "
+        "'mindlin-deresiewicz' (partial slip); Friction(compliant=...)",
     )
     p.add_argument(
         "--set",
@@ -255,7 +260,7 @@ def _fit_and_write(args, out) -> int:
         experiment = eqx.tree_at(
             lambda e: e.friction,
             experiment,
-            di.Friction(friction.mu, friction.mu_v, compliant=True),
+            di.Friction(friction.mu, friction.mu_v, compliant=args.compliant),
         )
     fixed = {k: _number(v, "set") for k, v in _pairs(args.set, "set").items()}
     free = [f.strip() for f in args.free.split(",") if f.strip()]
