@@ -1,5 +1,5 @@
 """Partial slip in a compliant circular contact (Mindlin & Deresiewicz), by
-the method of dimensionality reduction (F-13 .. F-15).
+the method of dimensionality reduction (F-16 .. F-18).
 
 The contact of a sphere (effective radius ``R``) under varying normal and
 tangential load is mapped, exactly for Hertz contacts of similar materials

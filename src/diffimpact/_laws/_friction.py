@@ -161,8 +161,23 @@ class Friction(AbstractValidated):
     so the contact point can reverse: a ball arriving without spin can leave
     slower than rolling (``e_t < 5/7``), which rigid-body theory excludes.
     The contact radius is Hertz's even where the normal law is plastic (a
-    plastic contact is wider, and stiffer in shear), and the partial-slip
-    softening of Mindlin-Deresiewicz below the cap is not modelled.
+    plastic contact is wider, and stiffer in shear).  ``compliant=True`` is
+    ``compliant="mindlin"``: no micro-slip below the cap.
+
+    **Partial slip** (``compliant="mindlin-deresiewicz"``, planar scenes).
+    Mindlin & Deresiewicz's contact under varying oblique load, as in Maw,
+    Barber & Fawcett's oblique impact: an annulus of micro-slip at the edge of
+    the contact softens it as the tangential force nears ``mu F_n``, newly
+    touching area enters unstressed, and loading and unloading follow
+    different paths.  It is computed by the method of dimensionality
+    reduction (`diffimpact._partial_slip`; F-16 .. F-18): ``annuli`` springs
+    (static, default 32) over the contact radii up to ``sqrt(R reach d_ref)``
+    (``reach`` static, default 2: twice the Hertz estimate of the maximum
+    compression ``d_ref``; a deeper contact is reported as
+    ``RESULTS.annuli_outgrown``), each with its own Coulomb cap, the caps
+    summing to ``mu F_n``.  Against the continuum theory the default is within
+    7.8e-4 of ``psi_1`` (tests/test_partial_slip.py); an impact takes
+    5,000-12,000 steps (the step budget is raised to at least 512 per spring).
 
     **Arguments:** `mu`: the Coulomb (kinetic) coefficient ``mu_k`` (>= 0;
     ``mu_k=`` is accepted as a keyword alias); `mu_v`: viscous coefficient [N
@@ -172,8 +187,10 @@ class Friction(AbstractValidated):
     differentiable field); `mu_s`: static coefficient (>= ``mu``; default
     None = plain F-1, bit-identical to ``Friction(mu, mu_v)``);
     `breakaway_slip`: ``x_s`` in slip widths (static; default None: 1 for the
-    exact hold, 4 for the slope-only law); `compliant`: Mindlin tangential
-    compliance (static, default False: a tangentially rigid contact);
+    exact hold, 4 for the slope-only law); `compliant`: tangential compliance
+    (static): False (default, a tangentially rigid contact), True or
+    ``"mindlin"`` (Mindlin's spring), ``"mindlin-deresiewicz"`` (partial
+    slip); `annuli`, `reach`: the partial-slip springs (static, above);
     `stick`: how a tangentially rigid contact is held at rest (static):
     ``"hold"`` (default) the exact hold, ``"slope"`` the slope-only law.
     ``mu``, ``mu_v`` and ``mu_s`` are differentiable fields.
@@ -239,13 +256,13 @@ class Friction(AbstractValidated):
             )
         if self.compliant and self.stick != "hold":
             raise ValueError(
-                "`Friction(compliant=True)` is the Mindlin spring capped at mu "
+                "`Friction(compliant=...)` is a spring capped at mu "
                 "F_n; `stick` (how a rigid contact is held) does not apply to it"
             )
         if self.compliant and self.mu_s is not None:
             raise ValueError(
-                "`Friction(compliant=True)` takes one coefficient `mu` (the "
-                "Mindlin spring is capped at mu F_n); `mu_s` is not supported with it"
+                "`Friction(compliant=...)` takes one coefficient `mu` (the "
+                "spring is capped at mu F_n); `mu_s` is not supported with it"
             )
         n = self.annuli
         if isinstance(n, bool) or not isinstance(n, int) or n < 2:
