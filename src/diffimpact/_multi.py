@@ -348,8 +348,9 @@ def simulate_span(
         )
     if friction is not None and friction.compliant:
         raise ValueError(
-            "`Friction(compliant=True)` (the Mindlin spring) is available in "
-            "diffimpact.simulate's planar scenes, not in simulate_span: use "
+            "`Friction(compliant=...)` (the Mindlin spring, or partial slip) is "
+            "available in diffimpact.simulate's planar scenes, not in "
+            "simulate_span: use "
             "Friction(mu, mu_v, stick='slope') here"
         )
     if friction is not None and friction.stick != "slope":

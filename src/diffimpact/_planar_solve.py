@@ -106,7 +106,9 @@ class _Planar(eqx.Module):
         jvp = jax.jvp(lambda qq: self.scene.kinematics(qq)[2], (q,), (q_dot,))
         bias = jvp[1] @ q_dot
         if self.friction.partial_slip:
-            cap = self.caps(d, v_n, d_m)
+            cap = mdr.caps(
+                d, self.friction.mu * f_n, self.annulus_depths, self.shear_stiffness
+            )
             spring = mdr.strip_force(y.spring * sc.length, cap, self.shear_stiffness)
             f_t = spring - self.friction.viscous(v_t, jnp.tanh(v_t / width))
         elif self.friction.compliant:

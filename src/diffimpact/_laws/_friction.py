@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+import numbers
 
 import equinox as eqx
 import jax
@@ -69,6 +70,14 @@ def _saturate(z, delta=_HOLD_CORNER):
     return z - delta * (
         jax.nn.softplus((z - 1.0) / delta) - jax.nn.softplus((-z - 1.0) / delta)
     )
+
+
+def _integral(x) -> bool:
+    return isinstance(x, numbers.Integral) and not isinstance(x, bool)
+
+
+def _real(x) -> bool:
+    return isinstance(x, numbers.Real) and not isinstance(x, bool)
 
 
 def _compliance(value):
@@ -229,8 +238,10 @@ class Friction(AbstractValidated):
         self.breakaway_slip = None if breakaway_slip is None else float(breakaway_slip)
         self.compliant = _compliance(compliant)
         self.stick = stick
-        self.annuli = annuli
-        self.reach = reach
+        # Plain Python numbers where given as numbers (numpy's included): they
+        # are static, and shape the state; anything else is refused below.
+        self.annuli = int(annuli) if _integral(annuli) else annuli
+        self.reach = float(reach) if _real(reach) else reach
 
     def _checks(self):
         out = [nonnegative(self.mu, "Friction.mu (kinetic coefficient mu_k)")]
@@ -265,7 +276,7 @@ class Friction(AbstractValidated):
                 "spring is capped at mu F_n); `mu_s` is not supported with it"
             )
         n = self.annuli
-        if isinstance(n, bool) or not isinstance(n, int) or n < 2:
+        if isinstance(n, bool) or not isinstance(n, numbers.Integral) or n < 2:
             raise ValueError(
                 f"`Friction.annuli` must be an integer >= 2 (springs of the "
                 f"partial-slip contact), got {n!r}"
@@ -273,7 +284,7 @@ class Friction(AbstractValidated):
         reach = self.reach
         if (
             isinstance(reach, bool)
-            or not isinstance(reach, (int, float))
+            or not isinstance(reach, numbers.Real)
             or not (math.isfinite(reach) and reach > 1.0)
         ):
             raise ValueError(
