@@ -54,16 +54,17 @@ class RESULTS(eqx.Enumeration):
         "than the approach, or a permanent deformation outside [0, d_max]); "
         "check the law's constants and the SolverSettings"
     )
+    precision_lost = (
+        "diffimpact: float32 lost the quadrature's precision (a non-finite "
+        "output); enable float64 with jax.config.update('jax_enable_x64', True) "
+        "at the start of the program"
+    )
+    # (appended: the integer codes of the others stay as they were)
     annuli_outgrown = (
         "diffimpact: the contact grew deeper than the partial-slip springs "
         "reach (Friction(compliant='mindlin-deresiewicz'): the interference "
         "passed Friction.reach x d_ref, the Hertz estimate); raise "
         "Friction.reach, e.g. to 4"
-    )
-    precision_lost = (
-        "diffimpact: float32 lost the quadrature's precision (a non-finite "
-        "output); enable float64 with jax.config.update('jax_enable_x64', True) "
-        "at the start of the program"
     )
 
 
