@@ -193,6 +193,26 @@ def test_published_features_of_the_thin_slice():
     assert abs(psi2(below) - (below - 4.0 * chi)) < 1e-6
 
 
+def test_sign_of_reflection_follows_chi():
+    """Maw, Barber & Fawcett (1976, their Fig. 4 at ``psi_1 = 1.2``): once gross
+    slip ceases the contact rings like a spring-mass system whose period,
+    against the impact's duration, grows with ``chi``, and that ratio sets the
+    sign of ``psi_2``.  The continuum theory here gives ``psi_2(1.2) = -0.24,
+    +0.06, +0.32`` at ``chi = 1.4, 1.6, 1.8``; the ball at nu = 0.3 (``chi``
+    1.441) reflects backwards, at nu = 0.05 (``chi`` 1.711) forwards, and
+    both agree with the continuum theory to 1e-3 of ``psi_1``."""
+    mu, psi1 = 0.3, 1.2
+    signs = []
+    for nu in (0.3, 0.05):
+        steel = di.Material(208e9, nu)
+        chi, ratio = _chi_and_scale(steel, steel)
+        angle = math.degrees(math.atan(psi1 * mu / ratio))
+        et, _ = tangential(angle, mu, plate=steel, body=steel, gravity=1e-6, height=2e6)
+        assert abs(et * psi1 - mbf_continuum(psi1, chi)) < 1e-3 * psi1
+        signs.append(math.copysign(1.0, et))
+    assert signs == [-1.0, 1.0]
+
+
 def test_tangential_cor_below_one_at_small_angles():
     """Near normal incidence the contact sticks from first touch: Mindlin's
     spring without micro-slip returns its energy (e_t 0.96 at 2-10 deg,
