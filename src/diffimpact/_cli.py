@@ -407,7 +407,8 @@ def main(argv=None) -> int:
     _cli_fit.register(sub)
     _cli_sweep.register(sub)
 
-    args = parser.parse_args(argv)
+    argv = sys.argv[1:] if argv is None else list(argv)
+    args = parser.parse_args(_cli_fit.bare_compliant(argv))
     return run_command(args.func, args)
 
 

@@ -26,6 +26,24 @@ _POSTERIOR_FILES = ("posterior.csv", "posterior.json", "corner.png", "predictive
 _LAWS = {"jackson-green": "JacksonGreen", "hertz": "Hertz"}
 
 
+# `--compliant [MODEL]`: the models (`Friction.compliant`'s, named here so
+# that the parser does not import the library).
+_COMPLIANCE = ("mindlin", "mindlin-deresiewicz")
+
+
+def bare_compliant(argv: list[str]) -> list[str]:
+    """``--compliant`` without a model, written before the data file (``fit
+    --compliant data.csv``), as ``--compliant=mindlin``: argparse would take
+    the file for the flag's optional value."""
+    out = list(argv)
+    for i, token in enumerate(out):
+        if token == "--compliant" and (
+            i + 1 == len(out) or out[i + 1] not in _COMPLIANCE
+        ):
+            out[i] = "--compliant=mindlin"
+    return out
+
+
 def register(sub) -> None:
     p = sub.add_parser(
         "fit",
@@ -52,7 +70,7 @@ def register(sub) -> None:
         nargs="?",
         const="mindlin",
         default=None,
-        choices=["mindlin", "mindlin-deresiewicz"],
+        choices=_COMPLIANCE,
         help="tangential compliance at the contact: 'mindlin' (the default "
         "with the bare flag; Mindlin's spring, no micro-slip) or "
         "'mindlin-deresiewicz' (partial slip); Friction(compliant=...)",

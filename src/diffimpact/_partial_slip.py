@@ -22,8 +22,10 @@ Here ``int_0^a`` is the midpoint rule on ``n`` springs (``Friction.annuli``),
 spaced ``Delta x`` over ``[0, sqrt(R d_cover)]``, ``d_cover = reach d_ref``
 (``Friction.reach``).  The caps are rescaled so that they sum to ``mu F_n``
 exactly (``F_n`` the normal law's force), so gross slip is Coulomb's force
-for every ``n`` and every normal law (for Hertz the rescaling is the
-quadrature's own error, ``O(Delta x^2)``).
+for every ``n`` and every normal law (for Hertz, once many springs touch, the
+rescaling corrects the rule's error in ``mu F_n``, ``O(Delta x^2)``; while one
+or two touch, at first touch and separation, it is a correction of order one:
+a single spring then carries all of ``mu F_n``).
 
 The projection onto the cap (the sliding spring follows it) is smoothed for
 the ODE: see `strip_rates`.

@@ -248,14 +248,14 @@ def planar_setup(scene, law, friction, settings):
     if compliant:
         if not bound.power_law:
             raise ValueError(
-                "`Friction(compliant=True)` puts Mindlin's spring 8 G* a of a "
+                "`Friction(compliant=...)` puts Mindlin's spring 8 G* a of a "
                 "circular (point) contact in series with slip; "
                 f"{type(law).__name__} is a line contact: use Friction(mu) "
                 "(tangentially rigid) with it"
             )
         if contact.shear_modulus is None:
             raise ValueError(
-                "`Friction(compliant=True)` needs the contact's shear modulus: "
+                "`Friction(compliant=...)` needs the contact's shear modulus: "
                 "the scene's contact() must come from materials"
             )
         shear_stiffness = (
@@ -322,10 +322,18 @@ def _slip_ratio(t, y: PlanarState, p: _Planar):
 _STEPS_PER_ANNULUS = 512
 
 
+def _default_max_steps(settings) -> int:
+    return next(
+        f.default for f in dataclasses.fields(settings) if f.name == "max_steps"
+    )
+
+
 def solve_planar(scene, law, friction, settings):
     if friction is not None and friction.partial_slip:
-        budget = max(settings.max_steps, _STEPS_PER_ANNULUS * friction.annuli)
-        settings = dataclasses.replace(settings, max_steps=budget)
+        # Only the default budget is raised: a budget the user chose stands.
+        if settings.max_steps == _default_max_steps(settings):
+            budget = max(settings.max_steps, _STEPS_PER_ANNULUS * friction.annuli)
+            settings = dataclasses.replace(settings, max_steps=budget)
     p, y0, inside = planar_setup(scene, law, friction, settings)
     sc, bound = p.sc, p.bound
     t_unit, impulse_unit, work_unit = sc.time, p.impulse_unit, p.work_unit
@@ -371,6 +379,9 @@ def solve_planar(scene, law, friction, settings):
         extras.update(
             _slip_extras(min_slip, slip_sign * v_t / v0, v_t0, friction, settings)
         )
+    if friction is not None and friction.partial_slip:
+        # How many springs the contact reached: its resolution (`_partial_slip`)
+        extras["annuli_touched"] = jnp.sum(p.annulus_depths < d_m).astype(jnp.int32)
     fields = result_fields(
         contact_time=contact_time,
         compression_time=compression_time,

@@ -64,7 +64,8 @@ class RESULTS(eqx.Enumeration):
         "diffimpact: the contact grew deeper than the partial-slip springs "
         "reach (Friction(compliant='mindlin-deresiewicz'): the interference "
         "passed Friction.reach x d_ref, the Hertz estimate); raise "
-        "Friction.reach, e.g. to 4"
+        "Friction.reach, e.g. to 4, and Friction.annuli with it to keep as "
+        "many springs in the contact"
     )
 
 

@@ -8,6 +8,7 @@ import numbers
 import equinox as eqx
 import jax
 import jax.numpy as jnp
+import numpy as np
 from jaxtyping import Array
 
 from .._checks import AbstractValidated, as_float, check, nonnegative
@@ -47,6 +48,9 @@ STICK_LAWS = ("hold", "slope")
 # Tangential compliance (`Friction.compliant`): Mindlin's spring (no
 # micro-slip), or Mindlin & Deresiewicz's partial slip.
 COMPLIANCE = ("mindlin", "mindlin-deresiewicz")
+# Most springs a partial-slip contact may have: each is a state, and the step
+# budget grows with them (64 springs: 1.5e-4 of psi_1 at 12,000 steps).
+_MAX_ANNULI = 1024
 
 
 def _ratio(force, capacity):
@@ -83,12 +87,13 @@ def _real(x) -> bool:
 def _compliance(value):
     """``Friction.compliant`` in its stored form: False, ``"mindlin"`` (also
     ``True``) or ``"mindlin-deresiewicz"``."""
-    if value is False or value is None:
-        return False
-    if value is True:
-        return "mindlin"
-    if isinstance(value, str) and value in COMPLIANCE:
-        return value
+    if isinstance(value, str):
+        if value in COMPLIANCE:
+            return value
+    elif value is None or (
+        isinstance(value, numbers.Integral | np.bool_) and value in (0, 1)
+    ):  # False, True, 0, 1, numpy's booleans
+        return "mindlin" if value else False
     raise ValueError(
         "`Friction.compliant` must be False (tangentially rigid), True or "
         "'mindlin' (Mindlin's spring, no micro-slip) or 'mindlin-deresiewicz' "
@@ -186,7 +191,9 @@ class Friction(AbstractValidated):
     ``RESULTS.annuli_outgrown``), each with its own Coulomb cap, the caps
     summing to ``mu F_n``.  Against the continuum theory the default is within
     7.8e-4 of ``psi_1`` (tests/test_partial_slip.py); an impact takes
-    5,000-12,000 steps (the step budget is raised to at least 512 per spring).
+    5,000-12,000 steps (a default step budget is raised to 512 per spring;
+    one the user set stands); ``extras["annuli_touched"]`` says how many
+    springs the contact reached.
 
     **Arguments:** `mu`: the Coulomb (kinetic) coefficient ``mu_k`` (>= 0;
     ``mu_k=`` is accepted as a keyword alias); `mu_v`: viscous coefficient [N
@@ -276,10 +283,14 @@ class Friction(AbstractValidated):
                 "spring is capped at mu F_n); `mu_s` is not supported with it"
             )
         n = self.annuli
-        if isinstance(n, bool) or not isinstance(n, numbers.Integral) or n < 2:
+        if (
+            isinstance(n, bool)
+            or not isinstance(n, numbers.Integral)
+            or not 2 <= n <= _MAX_ANNULI
+        ):
             raise ValueError(
-                f"`Friction.annuli` must be an integer >= 2 (springs of the "
-                f"partial-slip contact), got {n!r}"
+                f"`Friction.annuli` must be an integer in [2, {_MAX_ANNULI}] "
+                f"(springs of the partial-slip contact), got {n!r}"
             )
         reach = self.reach
         if (
