@@ -170,6 +170,10 @@ def test_maw_barber_fawcett_curve(plate):
         et, _ = tangential(angle, mu, plate=plate, gravity=1e-6, height=v**2 / 2e-6)
         psi2 = et * psi1
         assert abs(psi2 - mbf_continuum(psi1, chi)) < 1e-3 * psi1, psi1
+    # the elastic contact reaches d_ref: the springs with i - 1/2 < 32 / sqrt(2)
+    sc = ball(10.0, plate=plate, gravity=1e-6, height=v**2 / 2e-6)
+    r = di.simulate(sc, di.Hertz(), friction=di.Friction(mu, compliant=MD))
+    assert int(r.extras["annuli_touched"]) == 23
     psi1 = 4.0 * chi + 0.5
     angle = math.degrees(math.atan(psi1 * mu / ratio))
     et, _ = tangential(angle, mu, plate=plate, gravity=1e-6, height=v**2 / 2e-6)
