@@ -34,12 +34,14 @@ _COMPLIANCE = ("mindlin", "mindlin-deresiewicz")
 def bare_compliant(argv: list[str]) -> list[str]:
     """``--compliant`` without a model, written before the data file (``fit
     --compliant data.csv``), as ``--compliant=mindlin``: argparse would take
-    the file for the flag's optional value."""
+    the file for the flag's optional value.  A word that is neither a model
+    nor a file (``--compliant partial``) is left to argparse, which names the
+    models."""
     out = list(argv)
-    for i, token in enumerate(out):
-        if token == "--compliant" and (
-            i + 1 == len(out) or out[i + 1] not in _COMPLIANCE
-        ):
+    for i, token in enumerate(out[:-1]):
+        nxt = out[i + 1]
+        path_like = os.path.exists(nxt) or "." in nxt or os.sep in nxt
+        if token == "--compliant" and nxt not in _COMPLIANCE and path_like:
             out[i] = "--compliant=mindlin"
     return out
 
