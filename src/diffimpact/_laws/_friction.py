@@ -11,7 +11,7 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array
 
-from .._checks import AbstractValidated, as_float, check, nonnegative
+from .._checks import AbstractValidated, as_float, check, nonnegative, plain_number
 
 # Edge of the "stick band" of plain Coulomb friction, in slip widths: beyond it
 # tanh(v_t / eps) > 0.9999, the friction force is fully mobilised (sliding).
@@ -74,14 +74,6 @@ def _saturate(z, delta=_HOLD_CORNER):
     return z - delta * (
         jax.nn.softplus((z - 1.0) / delta) - jax.nn.softplus((-z - 1.0) / delta)
     )
-
-
-def _integral(x) -> bool:
-    return isinstance(x, numbers.Integral) and not isinstance(x, bool)
-
-
-def _real(x) -> bool:
-    return isinstance(x, numbers.Real) and not isinstance(x, bool)
 
 
 def _compliance(value):
@@ -245,10 +237,10 @@ class Friction(AbstractValidated):
         self.breakaway_slip = None if breakaway_slip is None else float(breakaway_slip)
         self.compliant = _compliance(compliant)
         self.stick = stick
-        # Plain Python numbers where given as numbers (numpy's included): they
-        # are static, and shape the state; anything else is refused below.
-        self.annuli = int(annuli) if _integral(annuli) else annuli
-        self.reach = float(reach) if _real(reach) else reach
+        # Static (they shape the state): numpy's scalars as plain numbers,
+        # anything else as given, for the checks below to judge.
+        self.annuli = plain_number(annuli)
+        self.reach = plain_number(reach)
 
     def _checks(self):
         out = [nonnegative(self.mu, "Friction.mu (kinetic coefficient mu_k)")]
@@ -283,11 +275,7 @@ class Friction(AbstractValidated):
                 "spring is capped at mu F_n); `mu_s` is not supported with it"
             )
         n = self.annuli
-        if (
-            isinstance(n, bool)
-            or not isinstance(n, numbers.Integral)
-            or not 2 <= n <= _MAX_ANNULI
-        ):
+        if isinstance(n, bool) or not isinstance(n, int) or not 2 <= n <= _MAX_ANNULI:
             raise ValueError(
                 f"`Friction.annuli` must be an integer in [2, {_MAX_ANNULI}] "
                 f"(springs of the partial-slip contact), got {n!r}"
@@ -295,7 +283,7 @@ class Friction(AbstractValidated):
         reach = self.reach
         if (
             isinstance(reach, bool)
-            or not isinstance(reach, numbers.Real)
+            or not isinstance(reach, int | float)
             or not (math.isfinite(reach) and reach > 1.0)
         ):
             raise ValueError(
