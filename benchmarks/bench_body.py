@@ -24,7 +24,7 @@ import numpy as np
 
 jax.config.update("jax_enable_x64", True)
 import diffimpact as di  # noqa: E402
-from diffimpact._residuals import map_rows  # noqa: E402
+from diffimpact._inference._residuals import map_rows  # noqa: E402
 
 HERE = Path(__file__).parent
 S = di.scenes

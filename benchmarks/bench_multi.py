@@ -5,7 +5,7 @@ Prints a table and writes ``benchmarks/multi.png``:
 1. Cost per simulated second of :func:`diffimpact.simulate_span` (one diffrax
    solve, Dopri8 and Tsit5) against scipy ``solve_ivp`` (DOP853, RK45, LSODA)
    on the *same* ODE: scipy integrates the very vector field of
-   ``simulate_span`` (``diffimpact._span_field._setup``, jitted, called once per
+   ``simulate_span`` (``diffimpact._solve._span_field._setup``, jitted, called once per
    stage), at the same tolerances on the same scaled state.  The error of every
    run is measured against a 1e-13 ``simulate_span`` reference at ``t1``: the
    eccentricity of the pin in the bearing (relative to the clearance) and the
@@ -33,7 +33,7 @@ from jax.flatten_util import ravel_pytree
 from scipy.integrate import solve_ivp
 
 import diffimpact as di
-from diffimpact._span_field import _setup
+from diffimpact._solve._span_field import _setup
 
 jax.config.update("jax_enable_x64", True)  # diffimpact is validated in float64
 

@@ -47,7 +47,7 @@ from scipy.integrate import solve_ivp  # noqa: E402
 
 import diffimpact as di  # noqa: E402
 from diffimpact._materials import effective_modulus, effective_shear_modulus  # noqa: E402
-from diffimpact._planar_solve import (  # noqa: E402
+from diffimpact._solve._planar import (  # noqa: E402
     _planar_field,
     _separation,
     planar_setup,

@@ -68,9 +68,9 @@ from jax.flatten_util import ravel_pytree
 from scipy.integrate import solve_ivp
 
 import diffimpact as di
-from diffimpact._binding import _bind
-from diffimpact._normal_solve import _y0
-from diffimpact._planar_solve import (
+from diffimpact._solve._bind import _bind
+from diffimpact._solve._normal import _y0
+from diffimpact._solve._planar import (
     PlanarState,
     _Planar,
     _planar_field,
@@ -378,7 +378,7 @@ class PlanarProblem:
 
 
 def planar_problem(scene, law, friction, settings: di.SolverSettings) -> PlanarProblem:
-    """The set-up of ``diffimpact._planar_solve.solve_planar`` (its own
+    """The set-up of ``diffimpact._solve._planar.solve_planar`` (its own
     ``planar_setup``)."""
     args, state, _ = planar_setup(scene, law, friction, settings)
     y0, unravel = ravel_pytree(state)

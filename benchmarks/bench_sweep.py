@@ -3,7 +3,7 @@
 A sweep of ``--n`` (default 10^6) normal Jackson-Green impacts of a 5 mm steel
 sphere on the same steel, velocities 0.01-10 m/s and yield strengths 50 MPa-2
 GPa drawn log-uniformly (seed 0), solved by ``method="quadrature"`` with
-``diffimpact._sweep.sweep`` in chunks, for each chunk size and each number of
+``diffimpact._inference._sweep.sweep`` in chunks, for each chunk size and each number of
 (host) devices asked for.
 
 Each configuration runs in a fresh Python process, so that its peak resident
@@ -54,7 +54,7 @@ def worker(n: int, chunk: int, save: Path | None) -> dict:
     import jax
     import numpy as np
 
-    from diffimpact._sweep import normal_impact, sample, sweep
+    from diffimpact._inference._sweep import normal_impact, sample, sweep
 
     inputs = sample(SEED, n, velocity=VELOCITY_RANGE, yield_strength=YIELD_RANGE)
     rss_inputs = _rss_mib()

@@ -16,7 +16,7 @@ os.environ.setdefault(
     str(pathlib.Path(__file__).parent.parent / ".pytest_cache" / "jax"),
 )
 os.environ.setdefault("JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS", "0")
-# The command line's own cache (diffimpact._cli.use_compilation_cache): the
+# The command line's own cache (diffimpact._cli._main.use_compilation_cache): the
 # same folder, never the user's home.
 os.environ.setdefault("DIFFIMPACT_CACHE_DIR", os.environ["JAX_COMPILATION_CACHE_DIR"])
 

@@ -6,7 +6,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from diffimpact._cli import main
+from diffimpact._cli._main import main
 
 
 def _data(tmp_path):

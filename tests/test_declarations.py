@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 import diffimpact as di
-from diffimpact._cli import main
+from diffimpact._cli._main import main
 
 S = di.scenes
 STEEL = di.Material(200e9, 0.3, np.inf, 7850.0)

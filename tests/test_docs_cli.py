@@ -2,7 +2,7 @@
 
 Every ```console block of the page is run, in order, in a fresh folder that
 holds a copy of ``data/``: each ``$ diffimpact ...`` line through
-``python -m diffimpact._cli`` (what the ``diffimpact`` script runs), each
+``python -m diffimpact`` (what the ``diffimpact`` script runs), each
 ``$ head -N FILE`` in Python.  The convention of the page:
 
 - a ``$ diffimpact ...`` command must exit with status 0, unless the next line
@@ -33,7 +33,7 @@ import sys
 import pytest
 
 import diffimpact as di
-from diffimpact._cli import main
+from diffimpact._cli._main import main
 
 ROOT = pathlib.Path(__file__).resolve().parent.parent
 PAGE = ROOT / "docs" / "cli.md"
@@ -124,7 +124,7 @@ def test_console_example(block, tmp_path):
             continue  # checked with the command before it
         if argv[0] == "diffimpact":
             run = subprocess.run(
-                [sys.executable, "-m", "diffimpact._cli", *argv[1:]],
+                [sys.executable, "-m", "diffimpact", *argv[1:]],
                 cwd=tmp_path,
                 env=env,
                 stdout=subprocess.PIPE,

@@ -1,4 +1,4 @@
-"""Least squares over many rows (`diffimpact._lsq`): row blocks on threads,
+"""Least squares over many rows (`diffimpact._inference._lsq`): row blocks on threads,
 rows in solving order, the warm start on a subsample, and the central
 differences that replace diverged forward-mode derivatives.  Normal impacts
 on the quadrature path: exact and cheap, so every check is to rounding."""
@@ -11,8 +11,8 @@ import pytest
 
 import diffimpact as di
 from diffimpact import _lsq
-from diffimpact._fit import _with_adjoint, prepare
-from diffimpact._residuals import _predictions, _value_and_jacobian
+from diffimpact._inference._fit import _with_adjoint, prepare
+from diffimpact._inference._residuals import _predictions, _value_and_jacobian
 
 VELOCITIES = np.linspace(0.2, 3.0, 24)
 
@@ -351,8 +351,8 @@ def test_the_stop_in_standard_errors(errors, lands):
 def test_auto_jacobian_needs_a_scale_for_the_step(noisy):
     """``jacobian="auto"`` differences rows in chunks on a CPU, but not where
     an unbounded parameter starts at 0 (its step would be 1e-5 of its unit)."""
-    from diffimpact._fit import _auto_jacobian
-    from diffimpact._transforms import make_transform
+    from diffimpact._inference._fit import _auto_jacobian
+    from diffimpact._inference._transforms import make_transform
 
     _, problem, _ = _problem(*noisy, 4)
     assert _auto_jacobian(problem) == "differences"

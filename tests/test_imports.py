@@ -1,5 +1,7 @@
-"""The package's import graph has no circle, and no module hides one behind
-an import inside a function."""
+"""The package's import graph: no circle, no module hiding one behind an
+import inside a function, and the family rule (docs/architecture.md): the
+families sit on levels, each imports only from its own level or below, and
+nothing whose name starts with ``_`` is imported from another family."""
 
 import ast
 import pathlib
@@ -7,16 +9,38 @@ import pathlib
 PACKAGE = pathlib.Path(__file__).parent.parent / "src" / "diffimpact"
 # The command line imports the library lazily so that `diffimpact --help`
 # answers at once; these are the only function-level package imports.
-LAZY = {"diffimpact._cli", "diffimpact._cli_fit", "diffimpact._cli_sweep"}
+LAZY = {"diffimpact._cli._main", "diffimpact._cli._fit", "diffimpact._cli._sweep"}
+# The families and their levels (lower never imports higher).  The flat
+# modules of the package (checks, materials, results, smooth functions) are
+# the ground floor; the package's __init__ and __main__ sit above all.
+LEVELS = {
+    "ground": 0,
+    "_laws": 1,
+    "scenes": 2,
+    "_solve": 3,
+    "_io": 3,
+    "_inference": 4,
+    "_cli": 5,
+    "top": 9,
+}
 
 
 def _module(path: pathlib.Path) -> str:
-    parts = path.relative_to(PACKAGE.parent).with_suffix("").parts
+    parts = path.with_suffix("").parts
+    parts = parts[len(parts) - 1 - parts[::-1].index("diffimpact") :]
     return ".".join(parts[:-1] if parts[-1] == "__init__" else parts)
 
 
-def _imports(path: pathlib.Path):
-    """``(target module, at top level?)`` of every package import in ``path``."""
+def family(module: str) -> str:
+    parts = module.split(".")
+    if len(parts) == 1 or parts[1] in ("__main__",):
+        return "top"
+    return parts[1] if parts[1] in LEVELS else "ground"
+
+
+def _imports(path: pathlib.Path, names: bool = False):
+    """``(target module, at top level?)`` of every package import in ``path``
+    (with ``names``: ``(target, imported names)``)."""
     name = _module(path)
     package = name if path.name == "__init__.py" else name.rpartition(".")[0]
     tree = ast.parse(path.read_text())
@@ -38,7 +62,13 @@ def _imports(path: pathlib.Path):
             continue
         for t in targets:
             if t.startswith("diffimpact"):
-                out.append((t, id(node) in top))
+                if names:
+                    imported = [a.name for a in node.names]
+                    if isinstance(node, ast.ImportFrom) and t != target:
+                        imported = []  # `from . import module`: a module
+                    out.append((t, imported))
+                else:
+                    out.append((t, id(node) in top))
     return out
 
 
@@ -88,3 +118,56 @@ def test_no_function_level_package_imports():
         if not at_top
     ]
     assert not hidden, hidden
+
+
+def _breaches(modules):
+    """Upward and private cross-family imports among ``{name: path}``."""
+    upward, private = [], []
+    for name, path in modules.items():
+        for target, imported in _imports(path, names=True):
+            while target not in modules and "." in target:
+                target = target.rpartition(".")[0]
+            if target == "diffimpact":
+                continue
+            here, there = family(name), family(target)
+            if here == there or here == "top":
+                continue
+            if LEVELS[there] >= LEVELS[here]:
+                upward.append(f"{name} <- {target}")
+            hidden = [n for n in imported if n.startswith("_")]
+            if hidden:
+                private.append(f"{name} <- {target}: {hidden}")
+    return upward, private
+
+
+def test_family_rule():
+    """Families import downward only, and share no private (``_``) names."""
+    _, modules = _graph()
+    upward, private = _breaches(modules)
+    assert not upward, upward
+    assert not private, private
+
+
+def test_family_rule_sees_a_breach(tmp_path):
+    """The rule's own check on a made-up package with both kinds of breach."""
+    pkg = tmp_path / "diffimpact"
+    for sub in ("_laws", "_solve", "_inference"):
+        (pkg / sub).mkdir(parents=True)
+    (pkg / "_laws" / "_friction.py").write_text("from .._solve._planar import x\n")
+    (pkg / "_solve" / "_planar.py").write_text(
+        "from .._laws._friction import _saturate, saturate\n"
+    )
+    (pkg / "_inference" / "_fit.py").write_text("from .._solve._planar import solve\n")
+    modules = {_module(p): p for p in pkg.rglob("*.py")}
+    upward, private = _breaches(modules)
+    assert upward == ["diffimpact._laws._friction <- diffimpact._solve._planar"]
+    assert private == [
+        "diffimpact._solve._planar <- diffimpact._laws._friction: ['_saturate']"
+    ]
+    assert family("diffimpact") == "top" and family("diffimpact._checks") == "ground"
+
+
+def test_every_family_says_what_it_owns():
+    for sub in ("_solve", "_inference", "_io", "_cli", "_laws", "scenes"):
+        doc = ast.get_docstring(ast.parse((PACKAGE / sub / "__init__.py").read_text()))
+        assert doc and len(doc) > 60, sub

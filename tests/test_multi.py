@@ -673,7 +673,7 @@ def test_wild_trial_state_gives_no_nan_gradient():
     (regression guard: otherwise ``jax.grad`` of a 0.2 s slider-crank span is
     NaN while every value is right).  Checked directly on the field, for both
     scenes (the bar with a hysteretic law); the field at the start is finite."""
-    from diffimpact._span_field import _setup
+    from diffimpact._solve._span_field import _setup
 
     cases = [
         (SliderCrank(), di.Hertz(), di.Friction(0.1, stick="slope")),

@@ -12,9 +12,9 @@ import numpy as np
 import pytest
 
 import diffimpact as di
-from diffimpact._diagnostics import ess_bulk, split_rhat
-from diffimpact._priors import parse_prior
-from diffimpact._transforms import make_transform
+from diffimpact._inference._diagnostics import ess_bulk, split_rhat
+from diffimpact._inference._priors import parse_prior
+from diffimpact._inference._transforms import make_transform
 
 DATA_BALL_PRISM = pathlib.Path(__file__).parent.parent / "data" / "ball_prism.csv"
 # The normal impact on the quadrature path: a posterior in seconds.
@@ -243,7 +243,7 @@ def test_bad_arguments_are_named_before_any_solve(noisy, kwargs, error, match):
 
 
 def test_cli_posterior_writes_its_files(noisy, tmp_path, capsys):
-    from diffimpact._cli import main
+    from diffimpact._cli._main import main
 
     out = tmp_path / "out"
     argv = ["fit", str(noisy), "--free", "yield_strength", "--out", str(out)]
@@ -272,7 +272,7 @@ def test_cli_posterior_writes_its_files(noisy, tmp_path, capsys):
     ],
 )
 def test_cli_posterior_bad_options_are_named(noisy, tmp_path, capsys, extra, match):
-    from diffimpact._cli import main
+    from diffimpact._cli._main import main
 
     argv = ["fit", str(noisy), "--free", "yield_strength", "--out", str(tmp_path)]
     assert main(argv + extra) == 2
@@ -285,8 +285,8 @@ def test_the_sampler_never_evaluates_far_outside(noisy):
     the divergence threshold, finitely, without a solve out there."""
     import equinox as eqx
 
-    from diffimpact._fit import prepare
-    from diffimpact._posterior import _Model
+    from diffimpact._inference._fit import prepare
+    from diffimpact._inference._posterior import _Model
 
     _, problem, u0, _, _ = prepare(
         noisy, "normal_impact", ["yield_strength"], None, None, None, None
@@ -336,7 +336,7 @@ def test_an_improper_posterior_is_refused(tmp_path, capsys):
     integrated out leaves a density that is infinite where the data are
     fitted exactly; refused before any solve (the command line writes no
     file)."""
-    from diffimpact._cli import main
+    from diffimpact._cli._main import main
 
     three = ["yield_strength", "youngs_modulus", "poisson_ratio"]
     with pytest.raises(ValueError, match="posterior is improper"):

@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 
 import diffimpact as di
-from diffimpact._cli import main
+from diffimpact._cli._main import main
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 
@@ -345,7 +345,7 @@ def test_sweep_python_per_row():
 
 def test_fit_json_is_strict(tmp_path, capsys, monkeypatch):
     """fit.json parses as strict JSON even with an infinite standard error."""
-    from diffimpact._fit import _json_ready
+    from diffimpact._inference._fit import _json_ready
 
     text = json.dumps(
         _json_ready({"se": [1.0, math.inf], "x": math.nan}), allow_nan=False
@@ -370,7 +370,7 @@ def test_fit_refuses_bad_start_and_fixed_values(monkeypatch):
     with pytest.raises(ValueError, match="start value of 'mu'"):
         di.fit("data/ball_prism.csv", free="mu", start={"mu": -0.1})
     e = di.Experiment.default("sphere_on_incline")
-    from diffimpact._observables import set_parameters
+    from diffimpact._inference._experiment import set_parameters
 
     with pytest.raises(ValueError, match="Material.poisson_ratio"):
         set_parameters(e, {"poisson_ratio": 0.7})
@@ -407,7 +407,7 @@ def event(event, **kw):
 mon.register_event_duration_secs_listener(duration)
 mon.register_event_listener(event)
 atexit.register(lambda: print("PROGRAMS", n["programs"], n["hits"]))
-from diffimpact._cli import main
+from diffimpact._cli._main import main
 sys.exit(main(sys.argv[1:]))
 """
 
@@ -497,7 +497,7 @@ def test_cli_refuses_conflicts(capsys, monkeypatch, argv, message):
 def test_cli_shows_the_message_of_a_check_inside_a_compiled_fit():
     """equinox wraps a traced check's message in its stack report: the CLI
     shows the message."""
-    from diffimpact._cli import _message
+    from diffimpact._cli._main import _message
 
     text = (
         "Above is the stack outside of JIT. Below is the stack inside of JIT:\n"
@@ -523,7 +523,7 @@ def test_fit_refuses_an_undefined_prediction(tmp_path):
 def test_unphysical_results_are_a_code():
     import jax.numpy as jnp
 
-    from diffimpact._simulate import _physical
+    from diffimpact._solve._simulate import _physical
 
     def out(cor, d_r):
         return {

@@ -199,7 +199,7 @@ def test_bad_input_is_named():
 def test_a_rigid_experiments_unknown_name_offers_what_it_takes():
     """A rigid law takes Coulomb friction only: its list of names leaves out
     the viscous mu_v (which it would refuse)."""
-    from diffimpact._observables import resolve_parameter
+    from diffimpact._inference._experiment import resolve_parameter
 
     bar = di.Experiment.default("free_bar").scene
     rigid = di.Experiment(bar, di.RigidContact(0.5, "newton"), di.Friction(0.2))

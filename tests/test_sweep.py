@@ -15,7 +15,7 @@ import numpy as np
 import pytest
 
 from diffimpact import _cli_sweep
-from diffimpact._sweep import (
+from diffimpact._inference._sweep import (
     NORMAL_OUTPUTS,
     check_normal_inputs,
     grid,
@@ -90,7 +90,7 @@ _SCRIPT = textwrap.dedent(
     if nproc > 1:
         jax.distributed.initialize(f"localhost:{port}", nproc, pid)
     import numpy as np
-    from diffimpact._sweep import grid, normal_impact, sweep
+    from diffimpact._inference._sweep import grid, normal_impact, sweep
     g = grid(velocity=np.geomspace(0.01, 10, 7),
              yield_strength=np.geomspace(5e7, 2e9, 5))
     assert len(jax.devices()) == 2, jax.devices()

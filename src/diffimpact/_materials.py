@@ -8,6 +8,12 @@ from jaxtyping import Array
 
 from ._checks import AbstractValidated, as_float, check, positive
 
+# Deepest interference, as a fraction of the effective radius, that the contact
+# laws are used for: Hertz and the JG fits describe a contact small against the
+# radius ((JG-6) has cos(pi a / R)).  simulate rejects impacts whose Hertz
+# estimate goes deeper.
+MAX_DEPTH = 0.5
+
 
 class Material(AbstractValidated):
     """An isotropic, elastic-perfectly-plastic material (SI units).

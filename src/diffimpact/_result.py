@@ -8,7 +8,7 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array
 
-from ._laws._base import MAX_DEPTH
+from ._materials import MAX_DEPTH
 
 
 class RESULTS(eqx.Enumeration):

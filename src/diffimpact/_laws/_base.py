@@ -33,12 +33,6 @@ from .._checks import AbstractValidated
 from .._materials import ContactProperties
 from .._smooth import safe_pow
 
-# Deepest interference, as a fraction of the effective radius, that the contact
-# laws are used for: Hertz and the JG fits describe a contact small against the
-# radius ((JG-6) has cos(pi a / R)).  simulate rejects impacts whose Hertz
-# estimate goes deeper.
-MAX_DEPTH = 0.5
-
 
 class AbstractBoundLaw(eqx.Module):
     hysteretic: eqx.AbstractClassVar[bool]

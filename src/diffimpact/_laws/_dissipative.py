@@ -23,7 +23,7 @@ from .._smooth import safe_pow
 from ._base import AbstractNormalLaw, AbstractSpringBoundLaw
 
 
-class _AbstractDampedHertz(AbstractNormalLaw):
+class AbstractDampedHertz(AbstractNormalLaw):
     """The fields shared by HC, LN and FL; each subclass only supplies its
     damping formula.
 
@@ -68,7 +68,7 @@ class _AbstractDampedHertz(AbstractNormalLaw):
         )
 
 
-class HuntCrossley(_AbstractDampedHertz):
+class HuntCrossley(AbstractDampedHertz):
     """Hunt-Crossley: ``F = K d^n (1 + D d_dot)``, ``D = 3 (1 - e) / (2 v0)`` (HC).
 
     **Arguments:** `cor` (target ``e`` in (0, 1]), `exponent` (``n``, 3/2),
@@ -80,7 +80,7 @@ class HuntCrossley(_AbstractDampedHertz):
         return 1.5 * (1.0 - self.cor)
 
 
-class LankaraniNikravesh(_AbstractDampedHertz):
+class LankaraniNikravesh(AbstractDampedHertz):
     """Lankarani-Nikravesh: ``D = 3 (1 - e^2) / (4 v0)`` (LN).  Arguments as
     `HuntCrossley`."""
 
@@ -88,7 +88,7 @@ class LankaraniNikravesh(_AbstractDampedHertz):
         return 0.75 * (1.0 - self.cor**2)
 
 
-class Flores(_AbstractDampedHertz):
+class Flores(AbstractDampedHertz):
     """Flores et al.: ``D = 8 (1 - e) / (5 e v0)`` (FL).  Arguments as
     `HuntCrossley`."""
 

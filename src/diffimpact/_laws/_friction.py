@@ -23,7 +23,7 @@ _COULOMB_BAND = 5.0
 #   ``S(z) = z`` to ``delta exp(-(1 - |z|) / delta)`` inside, so a contact
 #   needing 0.9 of its capacity gets it to 4.5e-7 of it at rest (the rest is
 #   made up by a slip of that order);
-_HOLD_CORNER = 0.01
+HOLD_CORNER = 0.01
 # - extra gain on the slip beyond the capacity, so that a contact that cannot be
 #   held (``|u| > 1``) reverses within ~``u / (1 + K (|u| - 1))`` slip widths
 #   of ``v_t = 0`` (sharp Coulomb: at 0) rather than ``u`` widths away;
@@ -41,7 +41,7 @@ _HOLD_CLIP = 10.0
 # Compliant contact (``compliant=True``): corner of the Mindlin spring's cap
 # (fraction of mu F_n), sharper than the hold's: the cap is where a sliding
 # contact sits, and a rounded corner leaves the force short of mu F_n there.
-_SPRING_CORNER = 1e-3
+SPRING_CORNER = 1e-3
 
 # How a tangentially rigid contact is held at rest (`Friction.stick`).
 STICK_LAWS = ("hold", "slope")
@@ -53,7 +53,7 @@ COMPLIANCE = ("mindlin", "mindlin-deresiewicz")
 _MAX_ANNULI = 1024
 
 
-def _ratio(force, capacity):
+def capacity_ratio(force, capacity):
     """``force / capacity`` where ``capacity > 1e-12 |force|``, else ``+-1e12``
     (no contact force at first contact and separation, or ``mu = 0``: the
     law is then saturated and multiplied by ``capacity = 0``); double-``where``
@@ -67,7 +67,7 @@ def _dead_zone(x, x0=_HOLD_DEAD_ZONE):
     return x - x * (x0 * x0 / (x * x + x0 * x0))
 
 
-def _saturate(z, delta=_HOLD_CORNER):
+def saturate(z, delta=HOLD_CORNER):
     """Smooth ``clip(z, -1, 1)``: odd, ``z`` inside to ``delta exp(-(1 -
     |z|)/delta)``, ``+-1`` outside to ``delta exp(-(|z| - 1)/delta)``; C-infinity."""
     z = jnp.clip(z, -_HOLD_CLIP, _HOLD_CLIP)  # (flat beyond for delta <= 0.1)
@@ -176,7 +176,7 @@ class Friction(AbstractValidated):
     the contact softens it as the tangential force nears ``mu F_n``, newly
     touching area enters unstressed, and loading and unloading follow
     different paths.  It is computed by the method of dimensionality
-    reduction (`diffimpact._partial_slip`; F-16 .. F-18): ``annuli`` springs
+    reduction (`diffimpact._solve._partial_slip`; F-16 .. F-18): ``annuli`` springs
     (static, default 32) over the contact radii up to ``sqrt(R reach d_ref)``
     (``reach`` static, default 2: twice the Hertz estimate of the maximum
     compression ``d_ref``; a deeper contact is reported as
@@ -366,8 +366,8 @@ class Friction(AbstractValidated):
         force ``elastic_force`` [N] (on the body), capped smoothly at ``mu F_n``,
         plus the viscous term (``compliant=True``, class docstring)."""
         capacity = self.mu * normal_force
-        u = _ratio(elastic_force, capacity)
-        coulomb = capacity * _saturate(u, _SPRING_CORNER)
+        u = capacity_ratio(elastic_force, capacity)
+        coulomb = capacity * saturate(u, SPRING_CORNER)
         return coulomb - self.viscous(slip_velocity, jnp.tanh(slip_velocity / width))
 
     def _hold_force(self, normal_force, x, holding_force):
@@ -381,11 +381,11 @@ class Friction(AbstractValidated):
             # the sharp law, instead of first slipping x_s widths against
             # mu_s (measured: 1.5e-4 of v_t on a bar that slides off).
             static = self.mu_s * normal_force
-            demand = _ratio(holding_force, static)
-            can_hold = jax.nn.sigmoid((1.0 - jnp.abs(demand)) / _HOLD_CORNER)
+            demand = capacity_ratio(holding_force, static)
+            can_hold = jax.nn.sigmoid((1.0 - jnp.abs(demand)) / HOLD_CORNER)
             near_rest = jnp.exp(-0.5 * (x / self.breakaway()) ** 2)
             capacity = kinetic + (static - kinetic) * near_rest * can_hold
-        u = _ratio(holding_force, capacity)
-        excess = _HOLD_CORNER * jax.nn.softplus((jnp.abs(u) - 1.0) / _HOLD_CORNER)
+        u = capacity_ratio(holding_force, capacity)
+        excess = HOLD_CORNER * jax.nn.softplus((jnp.abs(u) - 1.0) / HOLD_CORNER)
         beta = 1.0 + _HOLD_EXCESS_GAIN * excess
-        return capacity * _saturate(u - beta * _dead_zone(x))
+        return capacity * saturate(u - beta * _dead_zone(x))

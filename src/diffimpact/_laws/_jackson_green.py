@@ -14,9 +14,9 @@ import jax.numpy as jnp
 from jaxtyping import Array
 
 from .._checks import as_float, check, finite, positive
-from .._materials import ContactProperties
+from .._materials import MAX_DEPTH, ContactProperties
 from .._smooth import safe_div, safe_pow, safe_powers, safe_sqrt, step
-from ._base import MAX_DEPTH, AbstractBoundLaw, AbstractNormalLaw
+from ._base import AbstractBoundLaw, AbstractNormalLaw
 
 _f = eqx.field
 

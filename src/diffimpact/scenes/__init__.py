@@ -1,4 +1,7 @@
-"""Impact scenes: each holds its bodies, geometry and state at first contact."""
+"""Impact scenes: each holds its bodies (mass and inertia), geometry and
+materials, and its state at first contact, and says how its contact moves
+(the normal problem, or the planar kinematics of the contact point).  Scenes
+know materials only: they never solve."""
 
 from ._bar import FreeBar as FreeBar
 from ._base import AbstractScene as AbstractScene

@@ -1,0 +1,617 @@
+"""``diffimpact fit``: identify parameters from an experiment CSV.
+
+    diffimpact fit DATA.csv --free mu,yield_strength [--scene NAME] [--out DIR]
+
+prints the estimates with standard errors and correlations (a progress bar
+while it works) and writes, into DIR: ``fit.json`` (parameters, covariance,
+statistics), ``residuals.csv`` (measured, predicted, weighted residual per row
+and output), ``fit.png`` (measured vs predicted, residuals) and ``loop.png``
+(normal force against interference for the median row).  Nothing in DIR is
+overwritten without ``--force``; the check happens before the fit starts.
+"""
+
+from __future__ import annotations
+
+import csv
+import dataclasses
+import json
+import os
+
+from .._io._data import parse_number
+from ._files import integer, number, open_new, writable_folder
+
+_OUTPUT_FILES = ("fit.json", "residuals.csv", "fit.png", "loop.png")
+_HOLDOUT_FILES = ("holdout.csv", "holdout.png")
+_POSTERIOR_FILES = ("posterior.csv", "posterior.json", "corner.png", "predictive.png")
+_LAWS = {"jackson-green": "JacksonGreen", "hertz": "Hertz"}
+
+
+# `--compliant [MODEL]`: the models (`Friction.compliant`'s, named here so
+# that the parser does not import the library).
+_COMPLIANCE = ("mindlin", "mindlin-deresiewicz")
+
+
+def bare_compliant(argv: list[str]) -> list[str]:
+    """``--compliant`` without a model, written before the data file (``fit
+    --compliant data.csv``), as ``--compliant=mindlin``: argparse would take
+    the file for the flag's optional value.  A word that is neither a model
+    nor a file (``--compliant partial``) is left to argparse, which names the
+    models."""
+    out = list(argv)
+    for i, token in enumerate(out[:-1]):
+        nxt = out[i + 1]
+        path_like = os.path.exists(nxt) or "." in nxt or os.sep in nxt
+        if token == "--compliant" and nxt not in _COMPLIANCE and path_like:
+            out[i] = "--compliant=mindlin"
+    return out
+
+
+def register(sub) -> None:
+    p = sub.add_parser(
+        "fit",
+        help="fit parameters to an experiment CSV",
+        description=__doc__.split("\n\n")[0].replace("``", ""),
+    )
+    p.add_argument("data", help="experiment CSV (schema: docs/data-formats.md)")
+    p.add_argument(
+        "--free",
+        required=True,
+        help="comma-separated parameters to fit, e.g. mu,yield_strength",
+    )
+    p.add_argument(
+        "--scene", default=None, help="scene name if the file has no 'scene' column"
+    )
+    p.add_argument(
+        "--law",
+        choices=sorted(_LAWS),
+        default="jackson-green",
+        help="normal contact law (default jackson-green)",
+    )
+    p.add_argument(
+        "--compliant",
+        nargs="?",
+        const="mindlin",
+        default=None,
+        choices=_COMPLIANCE,
+        help="tangential compliance at the contact: 'mindlin' (the default "
+        "with the bare flag; Mindlin's spring, no micro-slip) or "
+        "'mindlin-deresiewicz' (partial slip); Friction(compliant=...)",
+    )
+    p.add_argument(
+        "--set",
+        action="append",
+        default=[],
+        metavar="NAME=VALUE",
+        help="fix a parameter to a value (SI), e.g. youngs_modulus=210e9",
+    )
+    p.add_argument(
+        "--start",
+        action="append",
+        default=[],
+        metavar="NAME=VALUE",
+        help="start value of a free parameter (SI; default: the scene's own)",
+    )
+    p.add_argument(
+        "--bounds",
+        action="append",
+        default=[],
+        metavar="NAME=LO:HI",
+        help="bounds of a free parameter (default 0:inf)",
+    )
+    p.add_argument(
+        "--solver",
+        choices=("levenberg-marquardt", "gauss-newton", "adam", "lbfgs"),
+        default="levenberg-marquardt",
+        help="optimiser (default levenberg-marquardt)",
+    )
+    p.add_argument(
+        "--max-steps",
+        type=integer,
+        default=100,
+        help="most optimiser steps (default 100)",
+    )
+    p.add_argument(
+        "--solver-steps",
+        type=integer,
+        default=None,
+        metavar="N",
+        help="step budget of each impact's ODE solve (SolverSettings.max_steps; "
+        "default 16384): raise it for rows whose solves run out of steps",
+    )
+    p.add_argument(
+        "--holdout",
+        type=number,
+        default=None,
+        metavar="FRACTION",
+        help="hold out this fraction of the rows, fit on the rest, and compare "
+        "the held-out errors of the model and of the rigid laws",
+    )
+    p.add_argument(
+        "--posterior",
+        action="store_true",
+        help="also sample the posterior of the free parameters (NUTS)",
+    )
+    p.add_argument(
+        "--samples",
+        type=integer,
+        default=None,
+        help="draws per chain kept (with --posterior; default 1000)",
+    )
+    p.add_argument(
+        "--warmup",
+        type=integer,
+        default=None,
+        help="warm-up steps per chain (with --posterior; default 1000)",
+    )
+    p.add_argument(
+        "--chains",
+        type=integer,
+        default=None,
+        help="chains, run together (with --posterior; default 4)",
+    )
+    p.add_argument(
+        "--prior",
+        action="append",
+        default=[],
+        metavar="NAME=KIND:A:B",
+        help="prior of a free parameter (with --posterior), e.g. mu=uniform:0:1, "
+        "yield_strength=lognormal:4e8:0.5; kinds: normal:MEAN:SD, "
+        "lognormal:MEDIAN:SIGMA, uniform:LOWER:UPPER, loguniform:LOWER:UPPER "
+        "(default: lognormal about the start value, sigma 1; uniform between "
+        "finite bounds)",
+    )
+    p.add_argument(
+        "--seed",
+        type=integer,
+        default=None,
+        help="draw of the held-out rows (--holdout) or of the chains "
+        "(--posterior); default 0",
+    )
+    p.add_argument("--out", default=None, help="output folder (default fit-<data>)")
+    p.add_argument("--force", action="store_true", help="overwrite outputs in --out")
+    p.add_argument("--no-progress", action="store_true", help="no progress bar")
+    p.set_defaults(func=run)
+
+
+def _pairs(items, what):
+    out = {}
+    for item in items:
+        name, sep, value = item.partition("=")
+        if not sep or not name.strip():
+            raise ValueError(f"--{what} expects NAME=VALUE, got {item!r}")
+        out[name.strip()] = value.strip()
+    return out
+
+
+# The chains' random keys take a seed of at most 32 bits.
+_SEED_MAX = 2**32 - 1
+
+
+def _number(text, what):
+    try:
+        return parse_number(text)
+    except ValueError:
+        raise ValueError(f"--{what}: {text!r} is not a number") from None
+
+
+def run(args) -> int:
+    if args.out is not None and not args.out.strip():
+        raise ValueError("--out is empty: give a folder (or leave --out out)")
+    out = args.out or "fit-" + os.path.splitext(os.path.basename(args.data))[0]
+    if os.path.exists(out) and not os.path.isdir(out):
+        raise ValueError(
+            f"--out {out}: is a file, not a folder; give a folder for "
+            f"{', '.join(_OUTPUT_FILES)}"
+        )
+    if args.max_steps < 1:
+        raise ValueError(f"--max-steps must be an integer >= 1, got {args.max_steps}")
+    if args.solver_steps is not None and args.solver_steps < 1:
+        raise ValueError(
+            f"--solver-steps must be an integer >= 1, got {args.solver_steps}"
+        )
+    if args.seed is not None and args.holdout is None and not args.posterior:
+        raise ValueError(
+            "--seed draws the held-out rows or the chains: give it with --holdout "
+            "or --posterior"
+        )
+    if args.holdout is not None and not 0.0 < args.holdout < 1.0:
+        raise ValueError(f"--holdout must be a fraction in (0, 1), got {args.holdout}")
+    _check_posterior_options(args)
+    files = _files(args)
+    existing = [f for f in files if os.path.exists(os.path.join(out, f))]
+    if existing and not args.force:
+        raise ValueError(
+            f"{out}: would overwrite {', '.join(existing)}; pass --force or choose "
+            "another --out"
+        )
+    # the folder exists and can be written, before minutes of fitting
+    created = writable_folder(out)
+    try:
+        return _fit_and_write(args, out)
+    except BaseException:
+        # a failed fit leaves no empty folder of its own making behind
+        if created and os.path.isdir(out) and not os.listdir(out):
+            os.rmdir(out)
+        raise
+
+
+def _fit_and_write(args, out) -> int:
+    import equinox as eqx
+
+    import diffimpact as di
+    from diffimpact._inference._experiment import scene_spec, set_parameters
+    from diffimpact.scenes import PlanarBody
+
+    data = di.load_experiments(args.data)
+    declared = data.declarations is not None
+    scene = args.scene or data.scene or ("planar_body" if declared else None)
+    if scene is None:
+        raise ValueError(f"{args.data}: no 'scene' column; pass --scene")
+    spec = scene_spec(scene)
+    scene = spec.name  # as the registry spells it ('Planar-Body' is planar_body)
+    if declared and spec.cls is not PlanarBody:
+        raise ValueError(
+            f"--scene {args.scene}: {data.declarations.where(args.data)} declare "
+            "a planar body; leave --scene out (or give planar_body)"
+        )
+    if declared:  # the body the file declares
+        experiment = di.Experiment.from_file(data)
+    else:
+        experiment = spec.default()
+    if args.law != "jackson-green":
+        experiment = experiment.__class__(
+            experiment.scene,
+            getattr(di, _LAWS[args.law])(),
+            experiment.friction,
+            experiment.method,
+            experiment.settings,
+        )
+    if args.solver_steps is not None:
+        experiment = dataclasses.replace(
+            experiment,
+            settings=dataclasses.replace(
+                experiment.settings, max_steps=args.solver_steps
+            ),
+        )
+    if args.compliant:
+        friction = experiment.friction
+        if friction is None:
+            raise ValueError(f"--compliant: the {scene} scene has no friction")
+        experiment = eqx.tree_at(
+            lambda e: e.friction,
+            experiment,
+            di.Friction(friction.mu, friction.mu_v, compliant=args.compliant),
+        )
+    fixed = {k: _number(v, "set") for k, v in _pairs(args.set, "set").items()}
+    free = [f.strip() for f in args.free.split(",") if f.strip()]
+    both = sorted(set(free) & set(fixed))
+    if both:
+        raise ValueError(
+            f"{', '.join(both)}: given both as --free and as --set; a parameter is "
+            "either fitted (use --start for its start value) or fixed"
+        )
+    experiment = set_parameters(experiment, fixed)
+    start = {k: _number(v, "start") for k, v in _pairs(args.start, "start").items()}
+    bounds = {}
+    for k, v in _pairs(args.bounds, "bounds").items():
+        lo, sep, hi = v.partition(":")
+        if not sep:
+            raise ValueError(f"--bounds expects NAME=LO:HI, got {k}={v}")
+        bounds[k] = (_number(lo, "bounds"), _number(hi, "bounds"))
+    options = dict(solver=args.solver, max_steps=args.max_steps)
+    if args.posterior:  # priors against bounds and starts, before any fit
+        from diffimpact._inference._posterior import plan
+
+        plan(data, experiment, free, _pairs(args.prior, "prior"), start, bounds)
+    if args.holdout is not None:
+        result = _cross_validate(
+            args, data, experiment, free, dict(start=start, bounds=bounds), out
+        )
+    else:
+        print(f"fitting {args.free} to {data.n} rows of {args.data} ({scene})")
+        result = di.fit(
+            data,
+            experiment,
+            args.free,
+            start=start,
+            bounds=bounds,
+            progress=not args.no_progress,
+            **options,
+        )
+    print(result.summary())
+    with open_new(os.path.join(out, "fit.json"), args.force) as fh:
+        json.dump(
+            {"data": os.path.abspath(args.data), "scene": scene, **result.to_dict()},
+            fh,
+            indent=2,
+            allow_nan=False,  # strict JSON: to_dict writes null for inf
+        )
+    write_residuals(result, os.path.join(out, "residuals.csv"), args.force)
+    plot_fit(result, os.path.join(out, "fit.png"), args.force)
+    note = plot_loop(result, os.path.join(out, "loop.png"), args.force)
+    if args.posterior:
+        _posterior(args, data, experiment, free, start, bounds, out, result)
+    files = _files(args)
+    print(f"wrote {out}/: {', '.join(files)}" + (f" ({note})" if note else ""))
+    # --force: an earlier run's files of another kind (holdout.csv of a run
+    # with --holdout, say) would sit beside these as if they belonged to them
+    every = _OUTPUT_FILES + _HOLDOUT_FILES + _POSTERIOR_FILES
+    stale = [
+        f for f in every if f not in files and os.path.isfile(os.path.join(out, f))
+    ]
+    if stale and args.force:
+        for f in stale:
+            os.remove(os.path.join(out, f))
+        print(f"removed {', '.join(stale)}: an earlier run's, not this one's (--force)")
+    elif stale:
+        print(
+            f"note: {', '.join(stale)} in {out}/ are an earlier run's, not this one's"
+        )
+    return 0
+
+
+def _files(args) -> tuple[str, ...]:
+    return (
+        _OUTPUT_FILES
+        + (_HOLDOUT_FILES if args.holdout is not None else ())
+        + (_POSTERIOR_FILES if args.posterior else ())
+    )
+
+
+def _check_posterior_options(args) -> None:
+    """Sampler options without --posterior, or out of range: named before
+    anything is fitted."""
+    given = [
+        f"--{n}"
+        for n in ("samples", "warmup", "chains")
+        if getattr(args, n) is not None
+    ] + (["--prior"] if args.prior else [])
+    if given and not args.posterior:
+        raise ValueError(f"{', '.join(given)}: give with --posterior")
+    if args.posterior and args.holdout is not None:
+        raise ValueError(
+            "--posterior and --holdout: choose one (the posterior of a held-out "
+            "fit is not what either measures)"
+        )
+    for name, low in (("samples", 20), ("warmup", 20), ("chains", 1)):
+        v = getattr(args, name)
+        if v is not None and v < low:
+            raise ValueError(f"--{name} must be an integer >= {low}, got {v}")
+    if args.seed is not None and not 0 <= args.seed <= _SEED_MAX:
+        raise ValueError(
+            f"--seed must be an integer in [0, {_SEED_MAX}], got {args.seed}"
+        )
+    from diffimpact._inference._priors import parse_prior
+
+    free = {f.strip() for f in args.free.split(",") if f.strip()}
+    for name, text in _pairs(args.prior, "prior").items():
+        if name not in free:
+            raise ValueError(
+                f"--prior {name}=...: {name!r} is not free (--free {args.free})"
+            )
+        parse_prior(text)
+
+
+def _posterior(args, data, experiment, free, start, bounds, out, fitted) -> None:
+    """``--posterior``: NUTS from the least-squares fit, four more files."""
+    import diffimpact as di
+
+    options = {
+        k: getattr(args, a)
+        for k, a in (
+            ("num_samples", "samples"),
+            ("num_warmup", "warmup"),
+            ("num_chains", "chains"),
+            ("seed", "seed"),
+        )
+        if getattr(args, a) is not None
+    }
+    print(
+        f"sampling the posterior of {args.free} ({options.get('num_chains', 4)} chains)"
+    )
+    post = di.posterior(
+        data,
+        experiment,
+        free,
+        priors=_pairs(args.prior, "prior"),
+        start=start,
+        bounds=bounds,
+        progress=not args.no_progress,
+        least_squares=fitted,
+        **options,
+    )
+    print(post.summary())
+    post.save(os.path.join(out, "posterior.csv"), args.force)
+    with open_new(os.path.join(out, "posterior.json"), args.force) as fh:
+        json.dump(
+            {"data": os.path.abspath(args.data), **post.to_dict()},
+            fh,
+            indent=2,
+            allow_nan=False,
+        )
+    _save(post.plot_corner(), os.path.join(out, "corner.png"), args.force)
+    _save(post.plot_predictive(), os.path.join(out, "predictive.png"), args.force)
+
+
+def _cross_validate(args, data, experiment, free, own_options, out):
+    """``--holdout``: the model and, for a planar scene with Coulomb friction,
+    the three rigid laws (`RigidContact`, fitting ``mu`` where the model
+    does, and ``cor``), fitted on the same rows and judged on the rest.
+    Returns the model's own fit (on the training rows)."""
+    import diffimpact as di
+    from diffimpact.scenes import AbstractPlanarScene
+
+    models, free_of = {args.law: experiment}, {args.law: free}
+    friction = experiment.friction
+    if isinstance(experiment.scene, AbstractPlanarScene) and friction is not None:
+        for law in di.RESTITUTION_LAWS:
+            models[law] = di.Experiment(
+                experiment.scene, di.RigidContact(0.5, law), di.Friction(friction.mu)
+            )
+            free_of[law] = [n for n in free if n == "mu"] + ["cor"]
+    else:
+        print("(no rigid baselines: they need a planar scene with friction)")
+    n_test = round(args.holdout * data.n)
+    print(
+        f"fitting {len(models)} models to {data.n - n_test} rows of {args.data}, "
+        f"holding out {n_test} (seed {args.seed or 0})"
+    )
+    cv = di.cross_validate(
+        data,
+        models,
+        free_of,
+        holdout=args.holdout,
+        seed=args.seed or 0,
+        model_options={args.law: own_options},
+        solver=args.solver,
+        max_steps=args.max_steps,
+        progress=not args.no_progress,  # each model's fit shows its bar
+    )
+    print("held-out RMS error (SI units):")
+    print(cv.table())
+    with open_new(os.path.join(out, "holdout.csv"), args.force) as fh:
+        w = csv.writer(fh)
+        w.writerow(["line", "model", "quantity", "measured_si", "predicted_si"])
+        for i, line in enumerate(cv.test_lines):
+            for model in cv.models:
+                for j, q in enumerate(cv.quantities):
+                    m, p = cv.measured[i, j], cv.predicted[model][i, j]
+                    w.writerow([int(line), model, q, repr(float(m)), repr(float(p))])
+    fig = cv.plot()
+    _save(fig, os.path.join(out, "holdout.png"), args.force)
+    return cv.fits[args.law]
+
+
+def write_residuals(result, path, force=False) -> None:
+    import csv
+
+    with open_new(path, force) as fh:
+        w = csv.writer(fh)
+        w.writerow(
+            ["line", *result.inputs, "quantity", "measured_si", "predicted_si"]
+            + ["sigma_si", "weighted_residual"]
+        )
+        for i in range(result.measured.shape[0]):
+            for k, q in enumerate(result.quantities):
+                if result.measured[i, k] != result.measured[i, k]:  # NaN: no data
+                    continue
+                w.writerow(
+                    [_line(result, i)]
+                    + [*(repr(float(v[i])) for v in result.inputs.values()), q]
+                    + [
+                        repr(float(result.measured[i, k])),
+                        repr(float(result.predicted[i, k])),
+                        repr(float(result.sigma[i, k])),
+                        repr(float(result.residuals[i, k])),
+                    ]
+                )
+
+
+def _line(result, i: int) -> int:
+    """The line in the data file of row ``i`` (how every output names it)."""
+    return int(result.lines[i]) if result.lines is not None else i + 1
+
+
+def _unit(quantity: str) -> str:
+    from diffimpact._io._data import unit_label
+
+    return unit_label(quantity)
+
+
+def plot_fit(result, path, force=False) -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    import numpy as np
+    from matplotlib.ticker import MaxNLocator
+
+    nq = len(result.quantities)
+    fig, axes = plt.subplots(2, nq, figsize=(3.6 * nq, 6.4), squeeze=False)
+    rows = np.asarray([_line(result, i) for i in range(result.measured.shape[0])])
+    measured_sigma = result.sigma_measured or (False,) * len(result.quantities)
+    for k, q in enumerate(result.quantities):
+        m, p = result.measured[:, k], result.predicted[:, k]
+        unit = _unit(q)
+        ax = axes[0, k]
+        if measured_sigma[k]:  # the file's own uncertainties
+            ax.errorbar(m, p, xerr=result.sigma[:, k], fmt="o", ms=4, lw=0.8)
+        else:  # no measured sigma: no error bars (the RMS scale is not one)
+            ax.plot(m, p, "o", ms=4)
+        lo, hi = np.nanmin([m, p]), np.nanmax([m, p])
+        ax.plot([lo, hi], [lo, hi], "k--", lw=0.8)
+        ax.set(
+            title=f"{q.replace('_', ' ')}{unit}",
+            xlabel=f"measured{unit}",
+            ylabel=f"predicted{unit}",
+        )
+        ax = axes[1, k]
+        ax.axhline(0.0, color="k", lw=0.8)
+        ax.plot(rows, result.residuals[:, k], "o", ms=4)
+        weight = "sigma" if measured_sigma[k] else "RMS of measured"
+        ax.set(
+            xlabel="line in the data file",
+            ylabel=f"(predicted - measured) / {weight}",
+        )
+        ax.xaxis.set_major_locator(MaxNLocator(integer=True))
+    fig.suptitle(
+        ", ".join(
+            f"{n} = {v:.4g} ± {s:.2g}"
+            for n, v, s in zip(
+                result.names, result.values, result.std_errors, strict=True
+            )
+        ),
+        fontsize=9,
+    )
+    _save(fig, path, force)
+
+
+def _save(fig, path, force) -> None:
+    """Write a figure exclusively (never over a user's file unless --force)."""
+    import matplotlib.pyplot as plt
+
+    fig.tight_layout()
+    with open_new(path, force, binary=True) as fh:
+        fig.savefig(fh, format="png", dpi=110)
+    plt.close(fig)
+
+
+def plot_loop(result, path, force=False) -> str:
+    """Normal force against interference for the median row (the normal problem
+    of the scene, which is exact for scenes whose normal motion decouples)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    import numpy as np
+
+    import diffimpact as di
+    from diffimpact._inference._experiment import with_inputs
+
+    n = result.measured.shape[0]
+    i = n // 2
+    row = {q: float(v[i]) for q, v in result.inputs.items()}
+    e = with_inputs(result.experiment, row)
+    fig, ax = plt.subplots(figsize=(5, 3.8))
+    note = ""
+    try:
+        r = di.simulate(e.scene, e.law, "smooth", n_history=400)
+        h = r.history
+        ax.plot(np.asarray(h.deflection) * 1e6, np.asarray(h.force), lw=1.2)
+    except (ValueError, TypeError) as err:  # a scene with no normal history
+        why = (
+            f"the {type(e.scene).__name__} solve keeps no force history"
+            if "n_history" in str(err)
+            else str(err)
+        )
+        note = f"no force-deflection loop: {why}"
+        ax.text(0.5, 0.5, note, ha="center", wrap=True, transform=ax.transAxes)
+    label = ", ".join(f"{q} = {v:.4g}" for q, v in row.items())
+    ax.set(
+        xlabel="interference d [um]",
+        ylabel="normal force [N]",
+        title=f"line {_line(result, i)}: {label} (SI)",
+    )
+    ax.title.set_fontsize(8)
+    _save(fig, path, force)
+    return note

@@ -1,0 +1,541 @@
+"""Parameter sweeps: evaluate one function over many parameter rows.
+
+Two ways to run a sweep, one contract: ``inputs`` is a pytree of arrays sharing
+a leading axis of length ``N`` (one row per parameter combination), and ``fn``
+maps one *unbatched* row (the same pytree with the leading axis removed) to an
+output pytree.
+
+- `sweep`: for large sweeps (10^6 rows and more).  ``jax.vmap(fn)`` runs
+  over chunks of ``chunk_size`` rows; each chunk is sharded along its rows over
+  a 1-D `jax.sharding.Mesh` of every device given (all that JAX sees by
+  default, across all processes under ``jax.distributed``) and its outputs are
+  copied to host numpy arrays, so device memory is bounded by the chunk,
+  whatever ``N``.  The result is numpy: it is *not* differentiable.
+- `sweep_map`: for small sweeps that must be differentiated.  It is
+  ``jax.vmap(fn)``, or ``jax.lax.map(fn, inputs, batch_size=...)`` over
+  batches, with no host transfer, so
+  ``jax.jit``/``jax.grad``/``jax.vmap`` compose with it (e.g. the gradient of a
+  mean rebound velocity over a batch).
+
+Helpers build ``inputs``: `grid` (Cartesian product) and `sample`
+(uniform or log-uniform random rows).  `normal_impact` is the row
+function of the common case, a sphere on a flat under Jackson-Green contact,
+solved by the ODE-free quadrature.
+"""
+
+from __future__ import annotations
+
+import functools
+import math
+import sys
+import time
+import zlib
+from collections.abc import Callable, Mapping, Sequence
+from typing import Any
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+from jax.sharding import Mesh, NamedSharding, PartitionSpec
+
+from .._laws._jackson_green import JacksonGreen
+from .._materials import Material
+from .._solve._settings import SolverSettings
+from .._solve._simulate import simulate
+from ..scenes import NormalImpact
+
+# Rows per device in a chunk by default.  On CPU, small chunks are faster:
+# the quadrature's per-row temporaries (32 x 16 Gauss nodes, ~25 kB a row)
+# then stay in cache.  Measured with benchmarks/bench_sweep.py (JG,
+# quadrature, one CPU device, 2 cores shared with other jobs, so +-30 %):
+# chunks of 512 rows ran 25,000 impacts/s, 1024 15,600/s, 16384 12,800/s,
+# 65536 9,800/s at 3.3 GB peak RSS.  On accelerators larger batches keep the
+# device busy; 65536 rows (~1.6 GB a chunk) is a guess, not measured.
+ROWS_PER_DEVICE = {"cpu": 512}
+ROWS_PER_DEVICE_ACCELERATOR = 65536
+
+_AXIS = "batch"  # name of the mesh axis the rows are sharded along
+
+
+# --------------------------------------------------------------------------
+# Validation
+# --------------------------------------------------------------------------
+
+
+def _rows(inputs, name: str = "inputs") -> tuple[int, list, Any]:
+    """Leaves (as arrays), common leading length and treedef of ``inputs``.
+
+    Raises ``ValueError`` naming the offending leaf for a missing leading axis,
+    mismatched leading axes or an empty sweep.  Only shapes are read, so this
+    works on tracers too (``sweep_map`` under ``jit``)."""
+    flat, treedef = jax.tree_util.tree_flatten_with_path(inputs)
+    if not flat:
+        raise ValueError(f"`{name}` is empty: give at least one array of rows")
+    leaves, n = [], None
+    first = None
+    for path, leaf in flat:
+        where = f"{name}{jax.tree_util.keystr(path)}"
+        if not isinstance(leaf, jax.Array | np.ndarray):
+            leaf = np.asarray(leaf)
+        if leaf.ndim == 0:
+            raise ValueError(
+                f"`{where}` is a scalar; every input needs a leading axis of "
+                "rows (broadcast fixed values, or close over them in `fn`)"
+            )
+        if n is None:
+            n, first = leaf.shape[0], where
+        elif leaf.shape[0] != n:
+            raise ValueError(
+                f"`{where}` has {leaf.shape[0]} rows but `{first}` has {n}: all "
+                "inputs must share the leading axis"
+            )
+        leaves.append(leaf)
+    if n == 0:
+        raise ValueError(f"`{name}` has 0 rows: the sweep is empty")
+    return n, leaves, treedef
+
+
+def _positive_int(x, name: str) -> int:
+    if isinstance(x, bool) or not isinstance(x, int | np.integer) or x <= 0:
+        raise ValueError(f"`{name}` must be an integer > 0, got {x!r}")
+    return int(x)
+
+
+# --------------------------------------------------------------------------
+# Progress bar (plain text to stderr: no extra dependency)
+# --------------------------------------------------------------------------
+
+
+class _Progress:
+    """``[######......]  42%  420,000/1,000,000  12.1 s  34,700/s  ETA 17 s``.
+
+    Redrawn in place with a carriage return, at most every 0.2 s."""
+
+    def __init__(self, total: int, stream=None, width: int = 30):
+        self.total, self.width = total, width
+        self.stream = sys.stderr if stream is None else stream
+        self.t0 = time.perf_counter()
+        self.last = -math.inf
+
+    def update(self, done: int, final: bool = False):
+        now = time.perf_counter()
+        if not final and now - self.last < 0.2:
+            return
+        self.last = now
+        elapsed = now - self.t0
+        frac = done / self.total
+        filled = int(round(self.width * frac))
+        rate = done / elapsed if elapsed > 0 else 0.0
+        eta = (self.total - done) / rate if rate > 0 else math.inf
+        eta_txt = f"ETA {eta:.0f} s" if math.isfinite(eta) else "ETA ?"
+        line = (
+            f"\r[{'#' * filled}{'.' * (self.width - filled)}] {100 * frac:3.0f}%  "
+            f"{done:,}/{self.total:,}  {elapsed:.1f} s  {rate:,.0f}/s  "
+            f"{'done' if final else eta_txt}"
+        )
+        self.stream.write(line + ("\n" if final else ""))
+        self.stream.flush()
+
+
+# --------------------------------------------------------------------------
+# Sweeps
+# --------------------------------------------------------------------------
+
+
+def _to_host(out):
+    """Copy a pytree of (sharded) arrays to host numpy arrays."""
+    leaves = jax.tree_util.tree_leaves(out)
+    if all(x.is_fully_addressable for x in leaves):
+        return jax.tree.map(np.asarray, out)
+    # Under jax.distributed the chunk's rows live on several processes: every
+    # process gathers all of them, in one collective for the whole pytree
+    # (so every process must call it).
+    from jax.experimental import multihost_utils
+
+    return jax.tree.map(np.asarray, multihost_utils.process_allgather(out, tiled=True))
+
+
+def default_chunk_size(devices: Sequence[jax.Device] | None = None) -> int:
+    """Default rows per chunk for ``devices`` (default ``jax.devices()``): 512
+    per CPU device, 65536 per accelerator (see ``ROWS_PER_DEVICE``)."""
+    devices = list(jax.devices() if devices is None else devices)
+    per = ROWS_PER_DEVICE.get(devices[0].platform, ROWS_PER_DEVICE_ACCELERATOR)
+    return per * len(devices)
+
+
+@functools.lru_cache(maxsize=16)
+def _cached_batched(fn):
+    return jax.jit(jax.vmap(fn))
+
+
+def _batched(fn):
+    """``jax.jit(jax.vmap(fn))``, the same object for the same ``fn``, so a
+    second sweep of the same function reuses the compiled programs."""
+    try:
+        return _cached_batched(fn)
+    except TypeError:  # unhashable callable (e.g. a Module holding arrays)
+        return jax.jit(jax.vmap(fn))
+
+
+def sweep(
+    fn: Callable,
+    inputs,
+    *,
+    chunk_size: int | None = None,
+    devices: Sequence[jax.Device] | None = None,
+    progress: bool = False,
+):
+    """Evaluate ``fn`` on every row of ``inputs``, in vmapped, sharded chunks.
+
+    **Arguments:**
+
+    - `fn`: maps one row (``inputs`` with the leading axis removed) to a pytree
+      of arrays.  It must be traceable by ``jax.vmap``/``jax.jit``.
+    - `inputs`: pytree of arrays (numpy or JAX) with a common leading axis of
+      ``N >= 1`` rows.  Kept on the host; each chunk is copied to the devices
+      in turn.
+    - `chunk_size`: rows per chunk, split evenly over the devices (default:
+      `default_chunk_size`, 512 rows per CPU device).  Rounded up to a
+      multiple of the number of devices, and down to ``N`` (rounded up) for
+      small sweeps.  The last chunk is padded by
+      repeating the last row, so every chunk has the same shape and ``fn`` is
+      compiled once (per device); the padding is dropped.  Device memory is
+      that of two chunks (one computing while the previous one is copied
+      back), whatever ``N``; host memory holds ``inputs`` and the outputs.
+    - `devices`: devices to shard each chunk over, as a 1-D
+      `jax.sharding.Mesh` (default ``jax.devices()``: all of them, on
+      every process under ``jax.distributed``).  Each gets
+      ``chunk_size / len(devices)`` consecutive rows of every chunk.
+    - `progress`: draw a text progress bar on stderr (process 0 only).
+
+    **Returns:** the output pytree of ``fn`` with every leaf stacked to a numpy
+    array of leading length ``N`` (row ``i`` is ``fn`` of row ``i``).
+
+    **Several processes** (``jax.distributed.initialize()`` first, on every
+    machine): every process calls ``sweep`` with the same ``inputs`` (a
+    `grid`, or a `sample` with the same key), computes the rows of
+    its own devices, and gets all ``N`` rows back (gathered by a collective
+    after each chunk, so every process must take part).
+
+    **Reproducibility:** every device runs the same single-device program
+    ``jax.vmap(fn)`` on its own rows (no SPMD partitioning), so sharding
+    changes no bit: ``K`` devices with chunks of ``K c`` rows give exactly
+    the results of one device with chunks of ``c``, and so do several
+    processes (the tests check this against one jitted ``jax.vmap(fn)`` over
+    all rows).  XLA may compile different batch sizes per device to
+    differently vectorised code: on the development CPU, 8 to 2048 rows per
+    device gave one set of bits and 4096 or more another: 3 % of 10^6 random
+    impacts differed, by at most 4e-15 relative (7.7e-14 on a permanent
+    deformation 200 times smaller than the maximum deflection it is the
+    difference of).  Fewer than 8 rows and 64 rows differed likewise.  Keep
+    the rows per device fixed when results must match bit for bit.
+
+    The result is numpy, so ``sweep`` cannot be differentiated; use
+    `sweep_map` for gradients through a (small) sweep.
+
+    **Raises:** ``ValueError`` naming the field for mismatched leading axes, an
+    empty sweep, or ``chunk_size <= 0``.
+    """
+    n, leaves, treedef = _rows(inputs)
+    devices = list(jax.devices() if devices is None else devices)
+    if not devices:
+        raise ValueError("`devices` is empty: give at least one device")
+    if chunk_size is None:
+        chunk_size = default_chunk_size(devices)
+    chunk_size = _positive_int(chunk_size, "chunk_size")
+    n_dev = len(devices)
+    # Never compute more padding than one device's share, and keep every
+    # device's share equal (NamedSharding needs divisibility).
+    chunk = min(chunk_size, n)
+    chunk = -(-chunk // n_dev) * n_dev
+    n_chunks = -(-n // chunk)
+
+    mesh = Mesh(np.asarray(devices), (_AXIS,))
+    rows = NamedSharding(mesh, PartitionSpec(_AXIS))
+    # Which rows of a chunk each of this process's devices holds (under
+    # jax.distributed, only the local devices are listed).
+    local = rows.addressable_devices_indices_map((chunk,))
+    # Every device runs the same single-device program `vmap(fn)` on its own
+    # rows, dispatched asynchronously (so all devices work at once), and the
+    # pieces are assembled into one array sharded by `rows`.  Rows are
+    # independent, so nothing needs to communicate, and each device leaves
+    # its loops (Newton, adaptive steps) when its own rows converge.  (An SPMD
+    # program -- jit with in_shardings, or shard_map -- is compiled through
+    # XLA's partitioning pipeline, which rewrites some arithmetic: its results
+    # differed from the unsharded ones by a few ulps, up to 6e-15.)
+    batched = _batched(fn)
+    host = [np.asarray(leaf) for leaf in leaves]
+
+    def run_chunk(k: int):
+        # Rows past the end repeat the last row: a valid input, so runtime
+        # checks inside `fn` (e.g. velocity > 0) are not tripped by padding.
+        idx = np.minimum(np.arange(k * chunk, (k + 1) * chunk), n - 1)
+        blocks = [leaf[idx] for leaf in host]
+        pieces = []
+        for device, index in local.items():
+            x = [jax.device_put(b[index], device) for b in blocks]
+            pieces.append(batched(jax.tree_util.tree_unflatten(treedef, x)))
+        flat = [jax.tree_util.tree_leaves(p) for p in pieces]
+        tdef = jax.tree_util.tree_structure(pieces[0])
+        out = [
+            jax.make_array_from_single_device_arrays(
+                (chunk,) + parts[0].shape[1:], rows, list(parts)
+            )
+            for parts in zip(*flat, strict=True)
+        ]
+        return jax.tree_util.tree_unflatten(tdef, out)
+
+    out_leaves, out_def = None, None
+    bar = _Progress(n) if progress and jax.process_index() == 0 else None
+    if bar is not None:
+        bar.update(0, final=False)  # shown during the first compilation
+
+    def collect(k: int, out):
+        nonlocal out_leaves, out_def
+        flat, tdef = jax.tree_util.tree_flatten(_to_host(out))
+        if out_leaves is None:
+            out_def = tdef
+            out_leaves = [np.empty((n,) + x.shape[1:], x.dtype) for x in flat]
+        start = k * chunk
+        stop = min(start + chunk, n)
+        for dst, src in zip(out_leaves, flat, strict=True):
+            dst[start:stop] = src[: stop - start]
+        if bar is not None:
+            bar.update(stop, final=stop == n)
+
+    # JAX dispatches asynchronously: chunk k+1 is queued before chunk k is
+    # copied back, so the devices are not idle during the host transfer.
+    pending = None
+    for k in range(n_chunks):
+        out = run_chunk(k)
+        if pending is not None:
+            collect(*pending)
+        pending = (k, out)
+    collect(*pending)
+    return jax.tree_util.tree_unflatten(out_def, out_leaves)
+
+
+def sweep_map(fn: Callable, inputs, *, batch_size: int | None = None):
+    """Differentiable sweep: ``fn`` on every row of ``inputs``, all in JAX.
+
+    ``jax.lax.map(fn, inputs, batch_size=batch_size)``: rows are processed
+    ``batch_size`` at a time by ``jax.vmap(fn)`` inside a ``lax.scan`` (the
+    remainder by one more vmap), so the working memory of the forward pass is
+    that of one batch.  With ``batch_size=None`` (default) all rows go through
+    one ``jax.vmap(fn)``, the fastest for the small sweeps this is meant for.
+    Reverse-mode gradients store the residuals of every row either way.
+
+    Nothing leaves the device, so ``jax.jit``, ``jax.grad`` and ``jax.vmap``
+    compose with it, e.g. ``jax.grad(lambda s: sweep_map(f, rows(s))[...].mean())``.
+    It runs on the default device; to shard it, ``jax.jit`` the caller with
+    ``in_shardings`` on the rows (and ``batch_size=None``).
+
+    **Arguments:** `fn` and `inputs` as in `sweep`; `batch_size`: rows
+    per vmapped step (integer > 0) or None.
+
+    **Returns:** the output pytree of ``fn``, leaves stacked to JAX arrays of
+    leading length ``N``.
+    """
+    n, _, _ = _rows(inputs)
+    if batch_size is None:
+        return jax.vmap(fn)(inputs)
+    batch_size = _positive_int(batch_size, "batch_size")
+    return jax.lax.map(fn, inputs, batch_size=min(batch_size, n))
+
+
+# --------------------------------------------------------------------------
+# Building inputs
+# --------------------------------------------------------------------------
+
+
+def grid(**axes) -> dict[str, np.ndarray]:
+    """Cartesian product of 1-D arrays, as flat columns.
+
+    ``grid(velocity=[1, 2], yield_strength=[1e8, 2e8, 3e8])`` gives a dict of
+    two arrays of 6 rows.  Rows are in C order: the *last* named axis varies
+    fastest, so ``column.reshape(len(a0), len(a1), ...)`` recovers the grid
+    (axis ``i`` along dimension ``i``).
+
+    **Raises:** ``ValueError`` naming the axis if it is not 1-D or empty, or if
+    no axis is given.
+    """
+    if not axes:
+        raise ValueError("`grid` needs at least one axis, e.g. velocity=[1.0, 2.0]")
+    arrays = {}
+    for name, values in axes.items():
+        a = np.asarray(values)
+        if a.ndim != 1:
+            raise ValueError(f"`{name}` must be a 1-D array of values, got {a.shape}")
+        if a.size == 0:
+            raise ValueError(f"`{name}` is empty: give at least one value")
+        arrays[name] = a
+    mesh = np.meshgrid(*arrays.values(), indexing="ij")
+    return {name: m.ravel() for name, m in zip(arrays, mesh, strict=True)}
+
+
+def sample(key, n: int, **ranges) -> dict[str, np.ndarray]:
+    """``n`` random rows, each column drawn independently.
+
+    **Arguments:**
+
+    - `key`: a ``jax.random`` key, or an integer seed.
+    - `n`: number of rows (> 0).
+    - `ranges`: ``name=(low, high)`` draws uniformly in ``[low, high)``;
+      ``name=(low, high, "log")`` draws *log-uniformly* (``log x`` uniform, the
+      natural choice for quantities spanning decades such as speeds and yield
+      strengths; needs ``0 < low``).
+
+    Each column's stream is keyed by its name (``fold_in`` of a CRC of it), so
+    adding or reordering columns does not change the others.
+
+    **Returns:** a dict of float arrays (float64 under diffimpact's default),
+    as numpy.
+    """
+    n = _positive_int(n, "n")
+    if not ranges:
+        raise ValueError("`sample` needs at least one range, e.g. velocity=(0.1, 10)")
+    if isinstance(key, int | np.integer):
+        key = jax.random.key(int(key))
+    out = {}
+    for name, spec in ranges.items():
+        spec = tuple(spec)
+        log = len(spec) == 3 and spec[2] == "log"
+        if len(spec) not in (2, 3) or (
+            len(spec) == 3 and spec[2] not in ("log", "lin")
+        ):
+            raise ValueError(
+                f"`{name}` must be (low, high) or (low, high, 'log'), got {spec!r}"
+            )
+        lo, hi = float(spec[0]), float(spec[1])
+        if not (math.isfinite(lo) and math.isfinite(hi) and lo <= hi):
+            raise ValueError(f"`{name}` needs finite low <= high, got ({lo}, {hi})")
+        if log and lo <= 0:
+            raise ValueError(f"`{name}`: a log-uniform range needs low > 0, got {lo}")
+        k = jax.random.fold_in(key, zlib.crc32(name.encode()) & 0x7FFFFFFF)
+        a, b = (math.log(lo), math.log(hi)) if log else (lo, hi)
+        u = jax.random.uniform(k, (n,), dtype=jnp.result_type(float))
+        x = a + (b - a) * u
+        out[name] = np.asarray(jnp.exp(x) if log else x)
+    return out
+
+
+# --------------------------------------------------------------------------
+# The common case: a sphere hitting a flat
+# --------------------------------------------------------------------------
+
+# Inputs of `normal_impact` and their defaults (SI): the reference impact
+# of the tests and benchmarks, a 5 mm steel sphere on a flat of the same steel.
+NORMAL_DEFAULTS: dict[str, float] = {
+    "velocity": 1.0,  # approach speed at first contact [m/s]
+    "yield_strength": 300e6,  # [Pa]
+    "youngs_modulus": 210e9,  # [Pa]
+    "poisson_ratio": 0.3,  # [-]
+    "radius": 5e-3,  # sphere radius [m]
+    "density": 7850.0,  # [kg/m^3], gives the mass when `mass` is not given
+}
+# `mass` [kg] has no fixed default: 4/3 pi radius^3 density.
+_NORMAL_COLUMNS = (*NORMAL_DEFAULTS, "mass")
+_ALIASES = {"E": "youngs_modulus", "nu": "poisson_ratio"}
+
+# Outputs of `normal_impact` (ImpactResult fields), SI units.
+NORMAL_OUTPUTS = (
+    "contact_time",  # [s]
+    "cor_newton",  # [-]
+    "max_force",  # [N]
+    "max_deflection",  # [m]
+    "permanent_deformation",  # [m]
+    "rebound_velocity",  # [m/s]
+)
+
+
+def _normal_params(params: Mapping[str, Any]) -> dict[str, Any]:
+    out = {}
+    for name, value in params.items():
+        canon = _ALIASES.get(name, name)
+        if canon not in _NORMAL_COLUMNS:
+            raise ValueError(
+                f"unknown sweep column `{name}`; normal_impact takes "
+                f"{', '.join(_NORMAL_COLUMNS)} (aliases E, nu)"
+            )
+        if canon in out:
+            raise ValueError(f"`{name}` is given twice (as `{canon}` and its alias)")
+        out[canon] = value
+    return out
+
+
+def _normal_scene(params: Mapping[str, Any]):
+    p = {**NORMAL_DEFAULTS, **_normal_params(params)}
+    if "mass" not in p:
+        p["mass"] = 4.0 / 3.0 * jnp.pi * p["radius"] ** 3 * p["density"]
+    mat = Material(
+        p["youngs_modulus"], p["poisson_ratio"], p["yield_strength"], p["density"]
+    )
+    return NormalImpact(
+        mass=p["mass"], radius=p["radius"], body=mat, flat=mat, velocity=p["velocity"]
+    )
+
+
+def check_normal_inputs(columns: Mapping[str, Any]) -> None:
+    """Check the columns of a `normal_impact` sweep before running it.
+
+    Inside a sweep the inputs are traced, so a bad row (say a zero velocity)
+    only fails at run time, as an ``EquinoxRuntimeError`` from the compiled
+    program.  This builds the scene once from the whole (concrete) columns, so
+    that a bad value raises ``ValueError`` naming the field (e.g.
+    ``NormalImpact.velocity``) before anything is compiled.
+    """
+    _normal_scene({k: np.asarray(v) for k, v in columns.items()})
+
+
+def normal_impact(
+    params: Mapping[str, Any],
+    *,
+    law=None,
+    method="quadrature",
+    settings=None,
+    throw: bool = False,
+) -> dict:
+    """One row of a normal-impact sweep: a sphere hitting a flat head-on.
+
+    Builds `diffimpact.scenes.NormalImpact` from the named columns of
+    ``params`` (any subset of `NORMAL_DEFAULTS` and ``mass``; the rest
+    take their defaults) and simulates it.  Sphere and flat are the same material
+    (``youngs_modulus``, ``poisson_ratio``, ``yield_strength``), as in the
+    Jackson-Green validation grid; ``mass`` defaults to
+    ``4/3 pi radius^3 density``.  ``E`` and ``nu`` are accepted as aliases.
+
+    **Arguments:**
+
+    - `params`: mapping of column name to a scalar (one row).
+    - `law`: the contact law (default `diffimpact.JacksonGreen`).
+    - `method`: default ``"quadrature"``, the ODE-free energy solution: exact
+      to about 1e-11 and the fastest path (Hertz and Jackson-Green only).
+    - `settings`: `diffimpact.SolverSettings` (default settings).
+    - `throw`: default False: a row whose impact fails (outside the contact
+      model, say) gets NaN outputs and its code, and the sweep goes on; True
+      stops the whole sweep at the first failure.
+
+    **Returns:** dict of `NORMAL_OUTPUTS` (SI: s, -, N, m, m, m/s) and
+    ``"result"``, the integer `diffimpact.RESULTS` code of each row
+    (0: successful; `diffimpact.result_name` names the others).
+
+    Use with `sweep` (``sweep(normal_impact, grid(velocity=...))``) or,
+    for other laws, ``functools.partial(normal_impact, law=di.Hertz())``;
+    `check_normal_inputs` validates the columns first.
+    """
+    scene = _normal_scene(params)
+    res = simulate(
+        scene,
+        JacksonGreen() if law is None else law,
+        method,
+        settings=SolverSettings() if settings is None else settings,
+        throw=throw,
+    )
+    # Only these outputs: XLA then drops the work nothing reads.
+    out = {name: getattr(res, name) for name in NORMAL_OUTPUTS}
+    out["result"] = res.result._value
+    return out
+
+
+# The public name (``diffimpact.normal_impact_row``): one row of a sweep.
+normal_impact_row = normal_impact

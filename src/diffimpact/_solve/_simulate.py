@@ -1,0 +1,290 @@
+"""One impact, from first contact to separation: `simulate`.
+
+Three methods share one post-processing step (``_normal_solve._assemble``):
+``"smooth"`` and ``"events"`` (diffrax solves, `._normal_solve`) and
+``"quadrature"`` (the ODE-free energy solution, `._quadrature`); planar
+scenes with friction, or whose rotation couples to the normal motion, are
+solved by `._planar_solve`.
+"""
+
+from __future__ import annotations
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+
+from .._checks import guard, is_traced, require_scalars
+from .._laws._base import AbstractNormalLaw
+from .._laws._friction import Friction
+from .._result import RESULTS, ImpactResult, finish, first_failure, raise_if_failed
+from ..scenes._base import AbstractScene
+from ..scenes._planar import AbstractPlanarScene
+from ._bind import within_model
+from ._normal import _assemble, _solve_events, _solve_smooth
+from ._planar import solve_planar
+from ._quadrature import normal_timeline
+from ._settings import SolverSettings
+from ._tangential import tangential_report
+
+_METHODS = ("auto", "smooth", "events", "quadrature")
+
+
+def _quadrature(problem, bound, settings, scene=None, friction=None):
+    """The ODE-free path; with ``friction``, also the closed-form tangential
+    outcome of ``scene`` (`._tangential`) under the key ``"tangential"``.
+
+    Its travel times integrate ``1/sqrt(potential drop)`` near a turning
+    point, where float32 cancellation can make the drop negative (NaN times,
+    seen in the stress grid): a float32 impact is computed in float64 when JAX
+    has it, and returned in float32.  Without x64 the outputs are checked, and
+    a non-finite one is an error, never a silent NaN."""
+
+    def solve(problem, bound, scene, friction):
+        timeline = normal_timeline(problem, bound, settings)
+        raw = timeline.outputs()
+        if friction is not None:
+            raw["tangential"] = tangential_report(
+                scene, problem, timeline, friction, settings
+            )
+        return raw
+
+    dtype = problem.velocity.dtype
+    if dtype != jnp.float32 or not jax.config.jax_enable_x64:
+        raw = solve(problem, bound, scene, friction)
+        if dtype == jnp.float32:
+            # (cor_tangential is inf by definition without a tangential
+            # approach: not a lost precision)
+            checked = {**raw, "tangential": dict(raw.get("tangential", {}))}
+            checked["tangential"].pop("cor_tangential", None)
+            finite = jnp.all(
+                jnp.stack(
+                    [
+                        jnp.all(jnp.isfinite(x))
+                        for x in jax.tree.leaves(checked)
+                        if eqx.is_inexact_array(x)
+                    ]
+                )
+            )
+            raw["result"] = first_failure(
+                raw["result"],
+                RESULTS.where(finite, RESULTS.successful, RESULTS.precision_lost),
+            )
+        return raw
+
+    def cast(tree, to):
+        return jax.tree.map(
+            lambda x: x.astype(to) if eqx.is_inexact_array(x) else x, tree
+        )
+
+    raw = solve(*cast((problem, bound, scene, friction), jnp.float64))
+    return cast(raw, dtype)
+
+
+def _exact_tangential(scene, friction) -> bool:
+    """Whether the tangential outcome has the closed form of
+    `._tangential` (the law must also be rate-independent): a scene
+    whose slip decouples, with rigid friction and no viscous term."""
+    return (
+        isinstance(scene, AbstractPlanarScene)
+        and scene.tangential_decouples
+        and friction is not None
+        and not friction.compliant
+        and friction.stick == "hold"
+        and friction.mu_v is None
+    )
+
+
+@eqx.filter_jit
+def _simulate(scene, law, method, settings, n_history, friction, throw):
+    planar = isinstance(scene, AbstractPlanarScene)
+    if planar:  # free flight to the contact in closed form, not integrated
+        scene = scene.at_first_contact()
+    coupled = planar and (friction is not None or not scene.normal_decouples)
+    # 1-DOF scenes, frictionless planar scenes whose normal DOF decouples
+    # (`normal_decouples`), and decoupled scenes with rigid friction
+    # (`_exact_tangential`): solved as the 1-DOF normal problem, with no
+    # tangential state at all.
+    problem, bound, inside = within_model(law, scene.normal_problem())
+    # The ODE-free closed forms need a rate-independent power law.
+    closed_form = bound.power_law and not bound.rate_dependent
+    exact = _exact_tangential(scene, friction) and closed_form
+    if coupled and method == "quadrature" and not exact:
+        raise ValueError(_NO_EXACT_TANGENTIAL)
+    if coupled and not (exact and method in ("auto", "quadrature")):
+        res = solve_planar(scene, law, friction, settings)
+        return finish(res, res.result, throw)
+    # "auto": the exact ODE-free solution wherever it applies (a
+    # rate-independent power law); the smooth ODE for other laws and for
+    # histories.
+    smooth = method == "smooth" or (
+        method == "auto" and (not closed_form or n_history > 0)
+    )
+    if smooth and not coupled:
+        raw = _solve_smooth(problem, bound, settings, n_history)
+        tangential = {}
+    elif method == "events":
+        raw = _solve_events(problem, bound, settings)
+        tangential = {}
+    else:
+        raw = _quadrature(problem, bound, settings, scene, friction)
+        tangential = raw.pop("tangential", {})
+    result = first_failure(inside, raw.pop("result"))
+    out = _assemble(problem, bound, raw)
+    result = first_failure(result, _physical(out))
+    extras = scene.extras(out["rebound_velocity"])
+    if tangential:
+        extras = {**extras, **tangential}
+    elif planar:
+        extras = {**extras, **scene.frictionless_report(out["contact_time"])}
+    return finish(ImpactResult(**out, extras=extras, result=result), result, throw)
+
+
+_NO_EXACT_TANGENTIAL = (
+    "method='quadrature' with friction needs a scene whose tangential motion "
+    "decouples (scenes.SphereOnIncline), rigid friction without a viscous "
+    "term (Friction(mu) or Friction(mu, mu_s=...), not compliant, stick='hold', "
+    "mu_v not given) and a rate-independent law (Hertz, JacksonGreen); use "
+    "method='smooth' (the ODE) otherwise"
+)
+
+
+def _physical(out):
+    """``unphysical`` for a head-on impact that returns more speed than it
+    came with, or a dent outside ``[0, d_max]``: no passive contact does
+    that, so constants far outside their sources' ranges (a negative decay
+    in JG-5, say) or an unconverged quadrature are reported, not returned.
+    The 1 % slack is far above the solvers' own errors at any sane setting
+    (float32 included; a loose rtol makes an elastic COR 1 + 1e-5), and far
+    below the nonsense it is there for (COR 1.5 to 13 in the cases found)."""
+    d_m, d_r = out["max_deflection"], out["permanent_deformation"]
+    tol = 1e-2
+    ok = (
+        (out["cor_newton"] <= 1.0 + tol)
+        & (d_r >= -tol * d_m)
+        & (d_r <= (1.0 + tol) * d_m)
+    )
+    return RESULTS.where(ok, RESULTS.successful, RESULTS.unphysical)
+
+
+def simulate(
+    scene: AbstractScene,
+    law: AbstractNormalLaw,
+    method: str = "auto",
+    *,
+    friction=None,
+    settings: SolverSettings = SolverSettings(),
+    n_history: int = 0,
+    throw: bool = True,
+    _guarded: bool = True,
+) -> ImpactResult:
+    """Simulate one impact of ``scene`` under the normal contact ``law``.
+
+    **Arguments:**
+
+    - `scene`: e.g. `diffimpact.scenes.NormalImpact` or
+      `diffimpact.scenes.Collinear`.
+    - `law`: a normal force law (`Hertz`, `JacksonGreen`, ...).
+    - `method`: ``"auto"`` (default), ``"smooth"``, ``"events"`` or
+      ``"quadrature"``.  ``"smooth"`` integrates the smooth-switched ODE
+      (every law, histories), ``"events"`` an event-switched one (1-DOF
+      normal impacts), and ``"quadrature"`` solves a normal impact by energy
+      integrals, without an ODE (rate-independent laws: Hertz, JacksonGreen;
+      exact to about 1e-11).  With friction on a scene whose tangential motion
+      decouples (a sphere on a plane) and rigid friction without a viscous
+      term, ``"quadrature"`` also gives the tangential outcome in closed form
+      (stick, re-slip and all; see `diffimpact._solve._tangential`).
+      ``"auto"`` takes ``"quadrature"`` wherever it applies, and ``"smooth"``
+      everywhere else (rate-dependent laws, coupled planar scenes, compliant
+      or viscous friction, ``n_history > 0``).
+    - `settings`: a `SolverSettings`.
+    - `friction`: a `Friction` at the contact point, for planar scenes
+      (e.g. `diffimpact.scenes.SphereOnIncline`); None = frictionless,
+      which solves the decoupled 1-DOF normal problem (no tangential state).
+    - `n_history`: number of equally spaced samples of deflection, velocity and
+      force to return in ``result.history`` (``"smooth"`` only; 0 = none).
+    - `throw`: what a failed impact does (outside the contact model, never
+      separating, out of steps).  True (default): raise, eagerly as a
+      `SimulationError` subclass (`OutsideModelError`, ...), under
+      ``jit``/``vmap`` as an ``equinox`` runtime error with the same message.
+      False: return it with NaN in every floating-point output and the reason
+      in ``result.result`` (a `RESULTS` code), leaving the other
+      elements of a ``vmap`` batch untouched.  Invalid inputs (a negative
+      modulus, a NaN speed) always raise, naming the field.
+
+    **Returns:** an `ImpactResult`.
+
+    ``jax.jit``, ``jax.vmap`` and ``jax.grad`` compose with this function: every
+    number in ``scene`` and ``law`` is a traced field.
+
+    (`_guarded=False`, private: no traced check of the inputs, for callers
+    that checked every input eagerly and keep traced values inside their
+    domains, such as `diffimpact.fit`.  A traced check is a host
+    callback, and JAX does not store a program with one in its persistent
+    compilation cache.)
+    """
+    if method not in _METHODS:
+        raise ValueError(f"`method` must be one of {_METHODS}, got {method!r}")
+    if not isinstance(scene, AbstractScene):
+        raise TypeError(
+            f"`scene` must be a diffimpact scene, got {type(scene).__name__}"
+        )
+    if not isinstance(law, AbstractNormalLaw):
+        raise TypeError(
+            f"`law` must be a diffimpact contact law, got {type(law).__name__}"
+        )
+    if n_history < 0 or (n_history > 0 and method not in ("auto", "smooth")):
+        raise ValueError(
+            "`n_history` must be >= 0, and histories come from method='smooth'"
+        )
+    if friction is not None and not isinstance(friction, Friction):
+        raise TypeError(
+            f"`friction` must be None or a diffimpact.Friction, got "
+            f"{type(friction).__name__}"
+        )
+    planar = isinstance(scene, AbstractPlanarScene)
+    if friction is not None and not planar:
+        raise ValueError(
+            f"`friction` acts on tangential motion, which {type(scene).__name__} "
+            "(a head-on impact) does not have; use a planar scene such as "
+            "scenes.SphereOnIncline"
+        )
+    if friction is not None and method == "events":
+        raise ValueError(
+            "friction is solved by method='smooth' (the ODE), or for a sphere "
+            "with rigid friction by 'quadrature' (closed form); not by 'events'"
+        )
+    if (
+        n_history > 0
+        and planar
+        and (friction is not None or not scene.normal_decouples)
+    ):
+        raise ValueError(
+            "`n_history` gives the history of a 1-DOF impact; this planar solve "
+            "has none (use n_history=0)"
+        )
+    if (
+        isinstance(scene, AbstractPlanarScene)
+        and not scene.normal_decouples
+        and method not in ("auto", "smooth")
+    ):
+        raise ValueError(
+            f"{type(scene).__name__} is solved by method='smooth' only: its "
+            "rotation couples to the normal motion, even without friction"
+        )
+    if not isinstance(settings, SolverSettings):
+        raise TypeError(
+            f"`settings` must be a diffimpact.SolverSettings, got "
+            f"{type(settings).__name__}"
+        )
+    # Every check of the inputs: eagerly a ValueError naming the field, before
+    # any solve; traced, threaded through the inputs, so it runs first and
+    # cannot be dropped (see `_checks.guard`).
+    for name, part in (("scene", scene), ("law", law), ("friction", friction)):
+        require_scalars(part, name)
+    if _guarded:
+        scene, law, friction = guard((scene, law, friction))
+    traced = is_traced((scene, law, friction))
+    res = _simulate(scene, law, method, settings, n_history, friction, throw and traced)
+    if throw and not traced:
+        raise_if_failed(res.result)
+    return res
