@@ -7,7 +7,8 @@ import pytest
 from conftest import MASS, RADIUS, rel, sphere
 
 import diffimpact as di
-from diffimpact import _normal_solve, _simulate
+from diffimpact._solve import _normal as _normal_solve
+from diffimpact._solve import _simulate
 
 
 def test_vmap_matches_loop():

@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 import diffimpact as di
-from diffimpact import _lsq
+from diffimpact._inference import _lsq
 from diffimpact._inference._fit import _with_adjoint, prepare
 from diffimpact._inference._residuals import _predictions, _value_and_jacobian
 

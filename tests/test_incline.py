@@ -11,7 +11,7 @@ import pytest
 from conftest import rel
 
 import diffimpact as di
-from diffimpact import _normal_solve
+from diffimpact._solve import _normal as _normal_solve
 
 BALL = di.Material(208e9, 0.3, 2e9)
 PRISM = di.Material(205e9, 0.29, 2e9)

@@ -14,7 +14,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from diffimpact import _cli_sweep
+from diffimpact._cli import _sweep as _cli_sweep
 from diffimpact._inference._sweep import (
     NORMAL_OUTPUTS,
     check_normal_inputs,
