@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 
 import diffimpact as di
-from diffimpact._inference._experiment import SCENES, _declared_spec
+from diffimpact._inference._scenes import SCENES, _declared_spec
 
 BALL = di.Material(208e9, 0.3)
 PLATE = di.Material(205e9, 0.29)

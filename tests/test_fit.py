@@ -275,3 +275,50 @@ def test_a_parameter_the_data_barely_move_is_named():
     with pytest.warns(di.IdentifiabilityWarning, match="barely determine mu"):
         result = di.fit(DATA / "ball_prism.csv", exp, ["mu"])
     assert result.std_errors[0] > 1e6 * result.values[0]
+
+
+_SECOND_FIT = """
+import sys, jax
+jax.config.update("jax_enable_x64", True)
+jax.config.update("jax_enable_compilation_cache", False)
+import jax.monitoring as mon
+import numpy as np
+import diffimpact as di
+n = [0]
+def duration(event, secs, **kw):
+    if event == "/jax/core/compile/backend_compile_duration":
+        n[0] += 1
+mon.register_event_duration_secs_listener(duration)
+exp = di.Experiment.default("normal_impact")
+v = np.linspace(0.3, 2.0, 6)
+cor = [float(di.predict(exp, {"impact_velocity": x})["cor_normal"]) for x in v]
+di.write_experiments(sys.argv[1], {"impact_velocity_m_s": v, "cor_normal": cor},
+                     scene="normal_impact", provenance="test")
+first = di.fit(sys.argv[1], exp, free="yield_strength",
+               start={"yield_strength": 2e8}, bounds={"yield_strength": (1e7, 2e9)})
+before = n[0]
+second = di.fit(sys.argv[1], exp, free="yield_strength",
+                start={"yield_strength": 7e8}, bounds={"yield_strength": (5e7, 3e9)})
+print("COMPILED", before, n[0] - before, first.values[0], second.values[0])
+"""
+
+
+def test_a_second_fit_with_new_start_values_compiles_nothing(tmp_path):
+    """Start values and bounds are numbers of the compiled program, not its
+    structure: a second fit in the same process with another start (and
+    other finite bounds of the same kind) runs the programs the first one
+    compiled (which map a bound takes, log, sigmoid or softplus, is
+    structure: a fit with a bound of another kind compiles anew).  Both
+    recover the true S_y of the noiseless rows (rtol 1e-6: both stop within
+    their tolerances of the same optimum)."""
+    import subprocess
+    import sys
+
+    out = subprocess.run(
+        [sys.executable, "-c", _SECOND_FIT, str(tmp_path / "rows.csv")],
+        capture_output=True, text=True, check=True,
+    ).stdout  # fmt: skip
+    first, second, s1, s2 = out.split("COMPILED")[1].split()
+    assert int(first) > 0 and int(second) == 0
+    true = float(di.Experiment.default("normal_impact").scene.flat.yield_strength)
+    np.testing.assert_allclose([float(s1), float(s2)], true, rtol=1e-6)

@@ -10,8 +10,9 @@ import numpy as np
 import pytest
 
 import diffimpact as di
-from diffimpact._inference import _lsq
-from diffimpact._inference._fit import _with_adjoint, prepare
+from diffimpact._inference import _fit as _fit_module
+from diffimpact._inference import _lsq, _row_blocks
+from diffimpact._inference._fit_problem import prepare, with_adjoint
 from diffimpact._inference._residuals import _predictions, _value_and_jacobian
 
 VELOCITIES = np.linspace(0.2, 3.0, 24)
@@ -40,7 +41,7 @@ def _problem(path, exp, chunk):
     data, problem, u0, _, _ = prepare(
         path, exp, ("yield_strength",), {"yield_strength": 300e6}, None, None, chunk
     )
-    return data, _with_adjoint(problem, diffrax.ForwardMode()), u0
+    return data, with_adjoint(problem, diffrax.ForwardMode()), u0
 
 
 def test_blocks_in_any_order_give_the_rows_predictions(noisy):
@@ -50,10 +51,10 @@ def test_blocks_in_any_order_give_the_rows_predictions(noisy):
     a quadrature row)."""
     data, problem, u0 = _problem(*noisy, 4)
     order = np.random.default_rng(0).permutation(data.n)
-    blocks = _lsq.RowBlocks(problem, order, 3)
+    blocks = _row_blocks.RowBlocks(problem, order, 3)
     try:
         got = blocks.predictions(u0)
-        r, jac = blocks.map(_lsq._block_values_and_jacobian, u0)
+        r, jac = blocks.map(_row_blocks._block_values_and_jacobian, u0)
     finally:
         blocks.close()
     want = _predictions(problem, u0)
@@ -63,7 +64,7 @@ def test_blocks_in_any_order_give_the_rows_predictions(noisy):
     np.testing.assert_allclose(r.reshape(-1), np.asarray(r_w), rtol=0, atol=1e-14)
     np.testing.assert_allclose(jac.reshape(-1, 1), np.asarray(jac_w), rtol=1e-12)
     with pytest.raises(ValueError, match="permutation"):
-        _lsq.RowBlocks(problem, order[:-1], 2)
+        _row_blocks.RowBlocks(problem, order[:-1], 2)
 
 
 def test_central_differences_replace_flagged_rows(noisy, monkeypatch):
@@ -72,10 +73,10 @@ def test_central_differences_replace_flagged_rows(noisy, monkeypatch):
     1e-4 in log S_y: truncation ~1e-8, rounding of the quadrature ~1e-12 /
     1e-4), and the count of differenced rows says so."""
     data, problem, u0 = _problem(*noisy, 8)
-    blocks = _lsq.RowBlocks(problem, np.arange(data.n), 2)
+    blocks = _row_blocks.RowBlocks(problem, np.arange(data.n), 2)
     try:
         exact = blocks.evaluate(u0)
-        monkeypatch.setattr(_lsq, "_DIVERGED", 0.5)
+        monkeypatch.setattr(_row_blocks, "_DIVERGED", 0.5)
         fd = blocks.evaluate(u0)
     finally:
         blocks.close()
@@ -95,12 +96,14 @@ def test_forward_differences_give_the_forward_mode_jacobian(noisy, monkeypatch):
     predicted at the point but failing at the shifted one gets forward mode's
     derivatives (forced here for row 5)."""
     data, problem, u0 = _problem(*noisy, 4)
-    exact_blocks = _lsq.RowBlocks(problem, np.arange(data.n), 3)
-    blocks = _lsq.RowBlocks(problem, np.arange(data.n), 3, jacobian="differences")
+    exact_blocks = _row_blocks.RowBlocks(problem, np.arange(data.n), 3)
+    blocks = _row_blocks.RowBlocks(
+        problem, np.arange(data.n), 3, jacobian="differences"
+    )
     try:
         exact = exact_blocks.evaluate(u0)
         fd = blocks.evaluate(u0)
-        real = _lsq._predictions
+        real = _row_blocks._predictions
 
         def failing_when_shifted(block, u):
             pred, codes, steps = real(block, u)
@@ -109,7 +112,7 @@ def test_forward_differences_give_the_forward_mode_jacobian(noisy, monkeypatch):
                 codes = np.where(rows == VELOCITIES[5], 1, np.asarray(codes))
             return pred, codes, steps
 
-        monkeypatch.setattr(_lsq, "_predictions", failing_when_shifted)
+        monkeypatch.setattr(_row_blocks, "_predictions", failing_when_shifted)
         fallback = blocks.evaluate(u0)
     finally:
         exact_blocks.close()
@@ -132,10 +135,10 @@ def test_one_flagged_row_is_differenced_alone(noisy, monkeypatch):
     with forward mode to 1e-6 (as above) and every other row's is forward
     mode's own."""
     data, problem, u0 = _problem(*noisy, 4)
-    blocks = _lsq.RowBlocks(problem, np.arange(data.n), 3)
+    blocks = _row_blocks.RowBlocks(problem, np.arange(data.n), 3)
     try:
         exact = blocks.evaluate(u0)
-        monkeypatch.setattr(_lsq, "_diverged_rows", lambda *a: np.array([5]))
+        monkeypatch.setattr(_row_blocks, "_diverged_rows", lambda *a: np.array([5]))
         fd = blocks.evaluate(u0)
     finally:
         blocks.close()
@@ -158,18 +161,18 @@ def test_an_update_recomputes_the_rows_that_left_the_linear_model(noisy):
     more than a quarter of the rows departing, or one not finite, the full
     evaluation."""
     data, problem, u0 = _problem(*noisy, 4)
-    blocks = _lsq.RowBlocks(problem, np.arange(data.n), 3)
+    blocks = _row_blocks.RowBlocks(problem, np.arange(data.n), 3)
     u1 = u0 + 0.02
     try:
         base, exact = blocks.evaluate(u0), blocks.evaluate(u1)
         k = np.asarray(problem.mask).shape[1]
         shifted = np.array(base.residual)
         shifted[5 * k] += 1.0
-        moved = _lsq._Evaluated(shifted, base.jacobian, base.differenced)
+        moved = _row_blocks._Evaluated(shifted, base.jacobian, base.differenced)
         got = blocks.update(u1, u0, moved, (1.0, 1.0))  # no secant step
         many = np.array(base.residual)
         many[: 10 * k] += 1.0  # 10 of the 24 rows
-        everything = _lsq._Evaluated(many, base.jacobian, base.differenced)
+        everything = _row_blocks._Evaluated(many, base.jacobian, base.differenced)
         full = blocks.update(u1, u0, everything, (1.0, 1.0))
         real = blocks.predictions
 
@@ -202,7 +205,7 @@ def test_the_secant_correction_brings_the_jacobian_to_the_new_point(noisy):
     (the base's error is all of it), bound 2e-2; with the step counted short
     (tolerance 1), the base's."""
     data, problem, u0 = _problem(*noisy, 4)
-    blocks = _lsq.RowBlocks(problem, np.arange(data.n), 2)
+    blocks = _row_blocks.RowBlocks(problem, np.arange(data.n), 2)
     u1 = u0 + 0.02
     try:
         base, exact = blocks.evaluate(u0), blocks.evaluate(u1)
@@ -230,9 +233,9 @@ def test_diverged_rows_are_those_far_above_the_median():
     jac[6, 1, 0] = 16.0  # a diverged derivative seen: 16 times the median
     jac[7, 0, 1] = 9e6
     mask = np.ones((20, 2), bool)
-    np.testing.assert_array_equal(_lsq._diverged_rows(jac, mask), [2, 4, 6])
+    np.testing.assert_array_equal(_row_blocks._diverged_rows(jac, mask), [2, 4, 6])
     mask[2] = False  # a row not fitted is never flagged (nor differenced)
-    np.testing.assert_array_equal(_lsq._diverged_rows(jac, mask), [4, 6])
+    np.testing.assert_array_equal(_row_blocks._diverged_rows(jac, mask), [4, 6])
 
 
 def test_warm_start_reaches_the_same_optimum(noisy):
@@ -280,8 +283,8 @@ def test_a_rising_gauss_newton_step_hands_back_to_the_solver(noisy, monkeypatch)
     monkeypatch.setattr(_lsq, "_RISE", -1.0)
     # (without the stop in standard errors, which on these 24 rows stops the
     # Gauss-Newton steps before any trial)
-    monkeypatch.setattr(di._fit, "_WITHIN", 0.0)
-    monkeypatch.setattr(di._fit, "least_squares", spy)
+    monkeypatch.setattr(_fit_module, "_WITHIN", 0.0)
+    monkeypatch.setattr(_fit_module, "least_squares", spy)
     forced = di.fit(path, exp, subsample=8, **kw)
     assert [c[0] for c in calls] == [
         "levenberg-marquardt",
@@ -391,7 +394,7 @@ def test_the_fits_predictions_are_the_models_at_its_estimate(noisy):
     measured), hence 1e-9."""
     path, exp = noisy
     r = di.fit(path, exp, free="yield_strength", start={"yield_strength": 250e6})
-    assert _lsq.workers() >= 1 and r.converged
+    assert _row_blocks.workers() >= 1 and r.converged
     direct = np.array(
         [
             float(di.predict(r.experiment, {"impact_velocity": v})["cor_normal"])
@@ -417,7 +420,7 @@ class _Cliff:
         r = np.array([u - 1.0, u - 1.0])
         if u > 0.5:
             r[1] = _lsq._FAILED_RESIDUAL
-        return _lsq._Evaluated(jnp.asarray(r), jnp.ones((2, 1)), jnp.asarray(0))
+        return _row_blocks._Evaluated(jnp.asarray(r), jnp.ones((2, 1)), jnp.asarray(0))
 
 
 @pytest.mark.parametrize("solver", ["levenberg-marquardt", "gauss-newton"])
@@ -435,7 +438,7 @@ def test_a_fit_stopped_by_failing_rows_has_not_converged(solver):
     assert list(final[3]) == [1]
     # without the cliff the same solver converges to u = 1
     cliff_free = _Cliff()
-    cliff_free.evaluate = lambda u: _lsq._Evaluated(
+    cliff_free.evaluate = lambda u: _row_blocks._Evaluated(
         jnp.asarray(np.full(2, float(np.asarray(u)[0]) - 1.0)),
         jnp.ones((2, 1)),
         jnp.asarray(0),
@@ -444,3 +447,37 @@ def test_a_fit_stopped_by_failing_rows_has_not_converged(solver):
         cliff_free, jnp.asarray([0.0]), solver, 50, 1e-8, 1e-8, None
     )
     assert converged and abs(float(u[0]) - 1.0) < 1e-8 and not len(final[3])
+
+
+@pytest.mark.parametrize("solver", ["levenberg-marquardt", "gauss-newton"])
+def test_the_optimistix_state_has_the_fields_least_squares_reads(solver):
+    """`_lsq.least_squares` steps optimistix's solver by hand and reads
+    ``state.y_eval`` (the next trial point) and
+    ``state.num_steps_since_acceptance`` (0 when the last step was taken):
+    fields of a private state.  pyproject pins optimistix below 0.2; this
+    fails first if a release within the range changes the layout.  On a
+    linear problem the trial points converge to the least-squares solution
+    (Gauss-Newton in one step, damped Levenberg-Marquardt geometrically), so
+    the trial point is checked for its value, not only its presence."""
+    import jax
+    import jax.numpy as jnp
+    import optimistix as optx
+
+    a = jnp.array([[2.0, 0.0], [0.0, 3.0], [1.0, 1.0]])
+    b = jnp.array([2.0, 6.0, 3.0])
+
+    def fn(u, args):
+        return a @ u - b, None
+
+    cls = (
+        optx.LevenbergMarquardt if solver == "levenberg-marquardt" else optx.GaussNewton
+    )
+    s = cls(rtol=1e-10, atol=1e-10)
+    u = jnp.zeros(2)
+    f_struct, aux_struct = jax.eval_shape(lambda: fn(u, None))
+    state = s.init(fn, u, None, {}, f_struct, aux_struct, frozenset())
+    for _ in range(12):
+        u, state, _ = s.step(fn, u, None, {}, state, frozenset())
+    assert int(state.num_steps_since_acceptance) in (0, 1)
+    x = np.linalg.lstsq(np.asarray(a), np.asarray(b), rcond=None)[0]
+    np.testing.assert_allclose(np.asarray(state.y_eval), x, rtol=1e-8)

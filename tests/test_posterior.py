@@ -285,14 +285,14 @@ def test_the_sampler_never_evaluates_far_outside(noisy):
     the divergence threshold, finitely, without a solve out there."""
     import equinox as eqx
 
-    from diffimpact._inference._fit import prepare
-    from diffimpact._inference._posterior import _Model
+    from diffimpact._inference._fit_problem import prepare
+    from diffimpact._inference._posterior import PosteriorModel
 
     _, problem, u0, _, _ = prepare(
         noisy, "normal_impact", ["yield_strength"], None, None, None, None
     )
     prior = (di.LogNormalPrior(400e6, 1.0),)
-    model = _Model(problem, jnp.zeros(problem.mask.size, bool), prior, 0)
+    model = PosteriorModel(problem, jnp.zeros(problem.mask.size, bool), prior, 0)
     inside = float(model.log_density(jnp.asarray([11.9])))
     outside = float(model.log_density(jnp.asarray([13.0])))
     assert math.isfinite(outside) and inside - outside > 1e5

@@ -345,10 +345,10 @@ def test_sweep_python_per_row():
 
 def test_fit_json_is_strict(tmp_path, capsys, monkeypatch):
     """fit.json parses as strict JSON even with an infinite standard error."""
-    from diffimpact._inference._fit import _json_ready
+    from diffimpact._inference._fit_result import json_ready
 
     text = json.dumps(
-        _json_ready({"se": [1.0, math.inf], "x": math.nan}), allow_nan=False
+        json_ready({"se": [1.0, math.inf], "x": math.nan}), allow_nan=False
     )
     assert json.loads(text) == {"se": [1.0, None], "x": None}
 

@@ -239,7 +239,8 @@ def _fit_and_write(args, out) -> int:
     import equinox as eqx
 
     import diffimpact as di
-    from diffimpact._inference._experiment import scene_spec, set_parameters
+    from diffimpact._inference._experiment import set_parameters
+    from diffimpact._inference._scenes import scene_spec
     from diffimpact.scenes import PlanarBody
 
     data = di.load_experiments(args.data)
@@ -257,7 +258,7 @@ def _fit_and_write(args, out) -> int:
     if declared:  # the body the file declares
         experiment = di.Experiment.from_file(data)
     else:
-        experiment = spec.default()
+        experiment = di.Experiment(**spec.default())
     if args.law != "jackson-green":
         experiment = experiment.__class__(
             experiment.scene,

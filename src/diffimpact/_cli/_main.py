@@ -265,10 +265,10 @@ def simulate_cmd(args) -> int:
     from diffimpact._cli._fit import _number, _pairs
     from diffimpact._inference._experiment import (
         resolve_parameter,
-        scene_spec,
         set_parameters,
         with_inputs,
     )
+    from diffimpact._inference._scenes import scene_spec
     from diffimpact._io._data import parse_column
 
     if args.cor is not None and args.law in (None, "jackson-green", "hertz"):

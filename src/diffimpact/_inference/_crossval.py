@@ -17,8 +17,11 @@ import numpy as np
 
 from .._io._data import ExperimentData, load_experiments
 from .._result import RESULTS
-from ._experiment import Experiment, predict
-from ._fit import FitResult, failed_rows, fit
+from ._experiment import Experiment
+from ._fit import fit
+from ._fit_problem import failed_rows
+from ._fit_result import FitResult
+from ._predict import predict
 from ._residuals import _chunk_size, map_rows
 
 

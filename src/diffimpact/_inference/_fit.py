@@ -20,189 +20,29 @@ instead of a confident wrong answer.
 
 from __future__ import annotations
 
-import contextlib
 import dataclasses
 import math
-import sys
 import time
-import warnings
 
 import diffrax
-import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
-import optax
 
-from .._io._data import ExperimentData, load_experiments
-from .._io._declared_body import check_declared
-from .._result import RESULTS, SolverError, result_name
-from ..scenes._body import PlanarBody
-from ._experiment import (
-    Experiment,
-    check_rows,
-    get_path,
-    predict,
-    resolve_parameter,
-    row_label,
-    scene_spec,
-    set_parameters,
-    with_parameters,
+from ._experiment import Experiment
+from ._fit_problem import (
+    check_predictions,
+    derivatives_named,
+    prepare,
+    with_adjoint,
 )
-from ._lsq import _REACH, _WARM_DIVERGED, RowBlocks, least_squares, workers
-from ._residuals import (
-    _FAILED_RESIDUAL,
-    _chunk_size,
-    _predictions,
-    _Problem,
-)
-from ._transforms import make_transform
+from ._fit_result import FitResult, fit_result
+from ._lsq import _WARM_DIVERGED, least_squares
+from ._minimise import minimise
+from ._progress import Progress
+from ._row_blocks import _REACH, RowBlocks, workers
 
 _SOLVERS = ("levenberg-marquardt", "gauss-newton", "adam", "lbfgs")
-# Singular values of the scaled Jacobian below this fraction of the largest
-# mean a direction the data do not determine (well above the ~1e-10 noise of
-# derivatives through solves at rtol 1e-11, well below any real sensitivity).
-_RANK_TOL = 1e-6
-# Where a direction is undetermined, its variance is reported from this floor
-# (so the errors come out huge and the correlation +-1, not infinite or NaN).
-_SV_FLOOR = 1e-9
-# A standard error this many times a parameter's value: not determined.
-_LOOSE = 10.0
-# Default bounds of parameters whose domain is not (0, inf), by field name.
-_DOMAINS = {
-    "poisson_ratio": (-1.0, 0.5),
-    "cor": (0.0, 1.0),
-    "dr_a": (0.0, 1.0),
-    # a planar body's centre of mass, in its shape's frame: either sign
-    "com_x": (-math.inf, math.inf),
-    "com_y": (-math.inf, math.inf),
-}
-
-
-class IdentifiabilityWarning(UserWarning):
-    """The data cannot determine some combination of the free parameters."""
-
-
-@dataclasses.dataclass(frozen=True)
-class FitResult:
-    """The outcome of `fit` (numbers in SI units, numpy arrays).
-
-    - `names`, `values`, `std_errors`, `start`: per free parameter;
-    - `covariance`, `correlation`: ``(p, p)``;
-    - `quantities`: the measured outputs fitted; `measured`, `predicted`,
-      `sigma`, `residuals` (weighted): ``(n_rows, n_quantities)``, NaN where a
-      row did not measure a quantity; `sigma_measured`: per quantity, whether
-      its sigma came from the file (else it is the RMS of the measurements);
-      `lines`: the line in the data file of each row (how every message and
-      output file names a row);
-    - `cost`: half the weighted sum of squares; `chi2_reduced`: ``2 cost / dof``;
-    - `iterations`, `converged`, `solver`, `seconds`; `subsample`: ``(rows,
-      iterations)`` of the warm start on a subsample (counted in
-      `iterations`), ``(0, 0)`` without one;
-    - `singular_values`: of the Jacobian w.r.t. the unconstrained parameters;
-    - `warnings`: identifiability and convergence messages;
-    - `experiment`: the `Experiment` with the fitted values in place.
-    """
-
-    names: tuple[str, ...]
-    values: np.ndarray
-    std_errors: np.ndarray
-    start: np.ndarray
-    covariance: np.ndarray
-    correlation: np.ndarray
-    quantities: tuple[str, ...]
-    inputs: dict
-    measured: np.ndarray
-    predicted: np.ndarray
-    sigma: np.ndarray
-    residuals: np.ndarray
-    cost: float
-    chi2_reduced: float
-    dof: int
-    absolute_sigma: bool
-    iterations: int
-    converged: bool
-    solver: str
-    seconds: float
-    singular_values: np.ndarray
-    warnings: tuple[str, ...]
-    experiment: Experiment
-    sigma_measured: tuple[bool, ...] = ()
-    lines: np.ndarray | None = None
-    subsample: tuple[int, int] = (0, 0)
-
-    @property
-    def identifiable(self) -> bool:
-        return not any("cannot determine" in w for w in self.warnings)
-
-    def summary(self) -> str:
-        """A table of estimates with standard errors and the correlations."""
-        w = max(len(n) for n in self.names)
-        lines = [f"{'parameter':<{w}}  {'estimate':>13}  {'std error':>11}  start"]
-        for n, v, s, x0 in zip(
-            self.names, self.values, self.std_errors, self.start, strict=True
-        ):
-            lines.append(f"{n:<{w}}  {v:>13.6g}  {s:>11.3g}  {x0:.6g}")
-        if len(self.names) > 1:
-            lines.append("correlation:")
-            for n, row in zip(self.names, self.correlation, strict=True):
-                lines.append(f"  {n:<{w}}  " + "  ".join(f"{c:+.3f}" for c in row))
-        lines.append(
-            f"{self.solver}: {self.iterations} iterations, "
-            f"{'converged' if self.converged else 'NOT converged'}, cost "
-            f"{self.cost:.4g}, reduced chi^2 {self.chi2_reduced:.4g} "
-            f"(dof {self.dof}), {self.seconds:.1f} s"
-        )
-        if self.subsample[0]:
-            lines[-1] += (
-                f"; the first {self.subsample[1]} iterations on "
-                f"{self.subsample[0]} rows"
-            )
-        lines += [f"warning: {m}" for m in self.warnings]
-        return "\n".join(lines)
-
-    def to_dict(self) -> dict:
-        """A JSON-ready summary (parameters, covariance, fit statistics);
-        non-finite numbers (an infinite standard error) become None (JSON has
-        no Infinity)."""
-        return _json_ready(self._dict())
-
-    def _dict(self) -> dict:
-        return {
-            "parameters": {
-                n: {"value": float(v), "std_error": float(s), "start": float(x0)}
-                for n, v, s, x0 in zip(
-                    self.names, self.values, self.std_errors, self.start, strict=True
-                )
-            },
-            "covariance": self.covariance.tolist(),
-            "correlation": self.correlation.tolist(),
-            "quantities": list(self.quantities),
-            "cost": self.cost,
-            "chi2_reduced": self.chi2_reduced,
-            "dof": self.dof,
-            "absolute_sigma": self.absolute_sigma,
-            "iterations": self.iterations,
-            "converged": self.converged,
-            "solver": self.solver,
-            "seconds": self.seconds,
-            "subsample": {
-                "rows": self.subsample[0],
-                "iterations": self.subsample[1],
-            },
-            "singular_values": self.singular_values.tolist(),
-            "warnings": list(self.warnings),
-        }
-
-
-def _json_ready(x):
-    if isinstance(x, dict):
-        return {k: _json_ready(v) for k, v in x.items()}
-    if isinstance(x, list | tuple):
-        return [_json_ready(v) for v in x]
-    if isinstance(x, float) and not math.isfinite(x):
-        return None
-    return x
 
 
 def fit(
@@ -307,9 +147,9 @@ def fit(
     # parameters: forward mode (one JVP per parameter) is the cheap way, and
     # diffrax differentiates a solve in forward mode only with ForwardMode.
     # The optax minimisers take gradients of a scalar loss: reverse mode.
-    forward = _with_adjoint(problem, diffrax.ForwardMode())
+    forward = with_adjoint(problem, diffrax.ForwardMode())
     t0 = time.perf_counter()
-    bar = _Progress(max_steps, solver) if progress else None
+    bar = Progress(max_steps, solver) if progress else None
     if bar:  # from the first second: compiling takes most of a first run
         bar.message(
             f"compiling the model for {len(free)} parameter(s) and "
@@ -318,9 +158,9 @@ def fit(
     # Every row must be predictable at the start: name the ones that are not
     # before minutes of iterations.
     if not gauss_newton:
-        _check_predictions(forward, u0, data, "at the start values")
-        with _derivatives_named(problem.experiment.settings):
-            u, steps, converged = _minimise(
+        check_predictions(forward, u0, data, "at the start values")
+        with derivatives_named(problem.experiment.settings):
+            u, steps, converged = minimise(
                 problem, u0, solver, max_steps, rtol, atol, learning_rate, bar
             )
         final = warm_info = None
@@ -332,7 +172,7 @@ def fit(
     if bar:
         bar.close()
         bar.message("covariance and residuals at the fitted values...", end="\n")
-    return _result(
+    return fit_result(
         forward,
         data,
         u,
@@ -436,7 +276,7 @@ def _fit_least_squares(
         compiling = blocks.compile_jacobian(jnp.asarray(u0))
     try:
         start = blocks.predictions(u0)
-        _check_predictions(problem, u0, data, "at the start values", start)
+        check_predictions(problem, u0, data, "at the start values", start)
         steps = np.asarray(start[2])
         # (None without chunks: the skipped chunks are what makes it cheap)
         k = _subsample_rows(subsample, n, len(problem.names), problem.chunk_size)
@@ -452,7 +292,7 @@ def _fit_least_squares(
         blocks = RowBlocks(problem, order, n_blocks, jacobian=jacobian)
         if compiling is not None:
             compiling.join()
-        with _derivatives_named(problem.experiment.settings):
+        with derivatives_named(problem.experiment.settings):
             u, done, warm_info = jnp.asarray(u0), 0, None
             warm_converged = rose = False
             if chosen.any():
@@ -526,492 +366,3 @@ def _subsample_rows(subsample, n: int, p: int, chunk: int | None) -> int | None:
         k = -(-k // chunk) * chunk
         return k if _WARM_FACTOR * k <= n else None
     return subsample if subsample < n else None
-
-
-def prepare(data, experiment, free, start, bounds, outputs, chunk_size):
-    """What `fit` and `posterior` share: the data loaded and checked, the free
-    parameters resolved with their transforms, and the residual problem.
-    Returns ``(data, problem, u0, x0, absolute)``; every check happens here,
-    before any solve."""
-    data, experiment, free = resolve(data, experiment, free)
-    return build(data, experiment, free, start, bounds, outputs, chunk_size)
-
-
-def resolve(data, experiment, free):
-    """The data loaded, the experiment made (from a scene name or the file's
-    scene) and every row's scene checked; the free names as a tuple."""
-    if isinstance(free, str):
-        free = [f.strip() for f in free.split(",") if f.strip()]
-    free = tuple(free)
-    if not free:
-        raise ValueError("`free` must name at least one parameter")
-    if len(set(free)) != len(free):
-        raise ValueError(f"`free` names a parameter twice: {free}")
-    if not isinstance(data, ExperimentData):
-        data = load_experiments(data)
-    if experiment is None and data.scene is None and data.declarations is None:
-        raise ValueError(
-            f"{data.path}: no 'scene' column; pass `experiment` (a scene name "
-            "or an Experiment)"
-        )
-    if experiment is None:
-        experiment = Experiment.from_file(data)
-    elif isinstance(experiment, str):
-        spec = scene_spec(experiment)
-        declared = data.declarations is not None and spec.cls is PlanarBody
-        experiment = Experiment.from_file(data) if declared else spec.default()
-    if data.declarations is not None:
-        check_declared(data.declarations, experiment.scene, data.path)
-    spec = scene_spec(experiment.scene)
-    if data.scene is not None and scene_spec(data.scene).name != spec.name:
-        raise ValueError(
-            f"{data.path} holds {data.scene!r} impacts, but the experiment's scene "
-            f"is {spec.name!r}"
-        )
-    check_rows(
-        experiment, data.inputs, data.path, data.lines, data.checks, data.columns
-    )
-    return data, experiment, free
-
-
-def default_bounds(path: str) -> tuple[float, float]:
-    """The bounds of a parameter (by its dotted path) when none are given."""
-    return _DOMAINS.get(path.rpartition(".")[2], (0.0, math.inf))
-
-
-def build(data, experiment, free, start, bounds, outputs, chunk_size):
-    """`prepare` after `resolve`: transforms and the residual problem."""
-    start, bounds = dict(start or {}), dict(bounds or {})
-    for d, what in ((start, "start"), (bounds, "bounds")):
-        extra = set(d) - set(free)
-        if extra:
-            raise ValueError(f"`{what}` names parameters that are not free: {extra}")
-    paths = tuple(resolve_parameter(experiment, n) for n in free)
-    # A scene field that a column of the file sets row by row cannot be
-    # fitted: every row would overwrite it, and the fit would change nothing.
-    spec = scene_spec(experiment.scene)
-    by_column = {"scene." + spec.inputs[q]: q for q in data.inputs if q in spec.inputs}
-    clash = [
-        (n, by_column[p]) for n, p in zip(free, paths, strict=True) if p in by_column
-    ]
-    if clash:
-        name, column = clash[0]
-        raise ValueError(
-            f"{name!r} cannot be fitted: the file's {column!r} column sets it row "
-            f"by row ({data.path}); fit another parameter, or drop that column"
-        )
-    experiment = with_parameters(experiment, paths)
-    x0 = [
-        float(start.get(n, get_path(experiment, p)))
-        for n, p in zip(free, paths, strict=True)
-    ]
-    transforms = tuple(
-        make_transform(n, x, bounds.get(n, _DOMAINS.get(p.rpartition(".")[2])))
-        for n, x, p in zip(free, x0, paths, strict=True)
-    )
-    _check_bounds(experiment, free, transforms)
-
-    quantities, measured, sigma, mask, absolute = _targets(data, outputs, experiment)
-    problem = _Problem(
-        experiment=experiment,
-        inputs={q: jnp.asarray(v) for q, v in data.inputs.items()},
-        measured=jnp.asarray(np.where(mask, measured, 0.0)),
-        sigma=jnp.asarray(sigma),
-        mask=jnp.asarray(mask),
-        names=free,
-        paths=paths,
-        quantities=quantities,
-        transforms=transforms,
-        chunk_size=_chunk_size(chunk_size, data.n),
-    )
-    # The unconstrained point of the start values (0 for the log and affine
-    # maps, not for bounded ones: a sigmoid's 0 is the middle of its bounds).
-    u0 = jnp.asarray([t.inverse(t.start) for t in transforms], dtype=float)
-    return data, problem, u0, np.asarray(x0), absolute
-
-
-@contextlib.contextmanager
-def _derivatives_named(settings):
-    """Derivatives through a solve that overflow stop the iterations inside a
-    linear solve (lineax's "non-finite input"): say what happened and what to
-    change.  Seen with Tsit5 at rtol 1e-8 on a planar body that sticks: the
-    values are accurate, but the sensitivities, integrated on the values'
-    steps, grow without bound (1e284 for one impact in 200); the default Dopri8
-    keeps them finite."""
-    try:
-        yield
-    except eqx.EquinoxRuntimeError as err:
-        if "non-finite" not in str(err):
-            raise
-        raise _diverged(settings) from None
-
-
-def _diverged(settings) -> SolverError:
-    return SolverError(
-        "the derivatives of the predictions with respect to the free "
-        "parameters are not finite (the sensitivities integrated along a "
-        f"solve with {type(settings.solver).__name__} at rtol="
-        f"{settings.rtol:g} diverged, typically in a stick phase); use the "
-        "default solver (Dopri8) or a tighter rtol in SolverSettings"
-    )
-
-
-def _check_bounds(experiment, free, transforms) -> None:
-    """Bounds that let a parameter leave its domain (a Poisson ratio up to
-    0.7, a negative yield strength) are refused before the fit, naming the
-    parameter, by the model's own checks at values just inside them."""
-    for name, t in zip(free, transforms, strict=True):
-        for edge in (t.lower, t.upper):
-            if not math.isfinite(edge):
-                continue
-            inside = edge + (1e-9 if edge == t.lower else -1e-9) * max(abs(edge), 1.0)
-            try:
-                set_parameters(experiment, {name: inside})
-            except ValueError as err:
-                raise ValueError(
-                    f"bounds of {name!r} reach outside its domain: {err}"
-                ) from None
-
-
-def _check_predictions(problem: _Problem, u, data, when: str, computed=None):
-    """Every row predicted at ``u`` (`computed`: `_predictions` there, if
-    already known), or a ValueError naming the rows that are not."""
-    pred, codes, _ = _predictions(problem, u) if computed is None else computed
-    codes = np.asarray(codes)
-    # A prediction that is not finite where a measurement is fitted (say a
-    # tangential COR at 0 deg, with no tangential approach) fails its row too.
-    mask = np.asarray(problem.mask)
-    undefined = np.any(mask & ~np.isfinite(np.asarray(pred)), axis=1)
-    ok = int(RESULTS.successful._value)
-    if np.any(undefined & (codes == ok)):
-        i = int(np.argmax(undefined & (codes == ok)))
-        k = int(np.argmax(mask[i] & ~np.isfinite(np.asarray(pred)[i])))
-        raise ValueError(
-            f"{data.path}, {row_label(data.lines, i)}: the model's "
-            f"{problem.quantities[k]} is not defined there (not finite, e.g. a "
-            "tangential COR without tangential approach); remove the value or "
-            "the row"
-        )
-    failed = np.nonzero(codes != ok)[0]
-    if failed.size == 0:
-        return
-    values = ", ".join(
-        f"{n} = {float(x):.6g}"
-        for n, x in zip(problem.names, problem.parameters(u), strict=True)
-    )
-    raise ValueError(
-        f"{data.path}: the prediction failed {when} ({values}) for "
-        f"{failed.size} of {codes.size} rows: {failed_rows(codes, failed, data.lines)}"
-    )
-
-
-def failed_rows(codes, failed, lines) -> str:
-    """The rows `failed` (indices into `codes`, the rows' result codes) by file
-    line with their reasons, at most ten, then the first reason in full."""
-    listed = "; ".join(
-        f"{row_label(lines, i)}: {result_name(codes[i]).replace('_', ' ')}"
-        for i in failed[:10]
-    )
-    more = f" (and {failed.size - 10} more)" if failed.size > 10 else ""
-    first = RESULTS[getattr(RESULTS, result_name(codes[failed[0]]))]
-    return f"{listed}{more}. First reason: {first.removeprefix('diffimpact: ')}"
-
-
-def _with_adjoint(problem: _Problem, adjoint) -> _Problem:
-    e = problem.experiment
-    settings = dataclasses.replace(e.settings, adjoint=adjoint)
-    return dataclasses.replace(
-        problem, experiment=dataclasses.replace(e, settings=settings)
-    )
-
-
-def _targets(data: ExperimentData, outputs, experiment):
-    available = [q for q in data.outputs if np.isfinite(data.outputs[q]).any()]
-    if outputs is None:
-        quantities = tuple(available)
-    else:
-        quantities = tuple([outputs] if isinstance(outputs, str) else outputs)
-        if not quantities:
-            raise ValueError(
-                f"`outputs` is empty: name at least one measured quantity "
-                f"(measured in {data.path}: {available})"
-            )
-        missing = [q for q in quantities if q not in available]
-        if missing:
-            raise ValueError(
-                f"{data.path}: no measurements of {missing} (measured: {available})"
-            )
-    # Which quantities the scene predicts, from shapes alone (no solve).
-    inputs0 = {q: v[0] for q, v in data.inputs.items()}
-    predicted = jax.eval_shape(lambda: predict(experiment, inputs0))
-    unknown = [q for q in quantities if q not in predicted]
-    if unknown:
-        raise ValueError(
-            f"{data.path}: scene {scene_spec(experiment.scene).name!r} does not "
-            f"predict {unknown} (it predicts {sorted(predicted)}); drop the "
-            "column(s) or choose the outputs to fit"
-        )
-    measured = np.stack([data.outputs[q] for q in quantities], axis=1)
-    mask = np.isfinite(measured)
-    sigma = np.ones_like(measured)
-    for k, q in enumerate(quantities):
-        if q in data.sigmas:
-            s = data.sigmas[q]
-        else:
-            col = measured[mask[:, k], k]
-            rms = float(np.sqrt(np.mean(col**2)))
-            s = np.full(len(measured), rms if rms > 0 else 1.0)
-        sigma[:, k] = np.where(mask[:, k], s, 1.0)
-    absolute = all(q in data.sigmas for q in quantities)
-    return quantities, measured, sigma, mask, absolute
-
-
-def _minimise(problem, u0, name, max_steps, rtol, atol, learning_rate, bar):
-    def loss(u):
-        r = problem.residuals(u)
-        return 0.5 * jnp.sum(r**2)
-
-    if name == "adam":
-        opt = optax.adam(learning_rate)
-        value_and_grad = jax.value_and_grad(loss)
-    else:
-        opt = optax.lbfgs()
-        grad_fn = optax.value_and_grad_from_state(loss)
-
-    @eqx.filter_jit
-    def step(u, state):
-        if name == "adam":
-            value, grad = value_and_grad(u)
-        else:
-            value, grad = grad_fn(u, state=state)
-        updates, state = opt.update(
-            grad, state, u, value=value, grad=grad, value_fn=loss
-        )
-        return optax.apply_updates(u, updates), state, value, grad
-
-    state = opt.init(u0)
-    u, steps, converged, last = u0, 0, False, math.inf
-    while steps < max_steps:
-        u_new, state, value, grad = step(u, state)
-        steps += 1
-        value = float(value)
-        if bar:
-            bar.update(steps, value)
-        small_step = float(jnp.max(jnp.abs(u_new - u))) < rtol + atol
-        small_change = abs(last - value) <= rtol * abs(value) + atol
-        u, last = u_new, value
-        if float(jnp.max(jnp.abs(grad))) <= atol or (small_step and small_change):
-            converged = True
-            break
-    return u, steps, converged
-
-
-def _result(
-    problem,
-    data,
-    u,
-    steps,
-    converged,
-    solver,
-    seconds,
-    x0,
-    absolute,
-    user_settings,
-    final=None,
-    warm=None,
-):
-    """The `FitResult` at ``u``.  `final`: the residuals and their Jacobian
-    at ``u`` from the last step, if known (else both are computed here);
-    `warm`: ``(rows, iterations)`` of the warm start."""
-    names = problem.names
-    x = np.array([float(v) for v in problem.parameters(u)])
-    mask = np.asarray(problem.mask)
-    measured = np.where(mask, np.asarray(problem.measured), np.nan)
-    sigma = np.asarray(problem.sigma)
-    if final is None:  # the optax minimisers: evaluate at the optimum
-        blocks = RowBlocks(problem, np.arange(data.n), workers())
-        try:
-            e = blocks.evaluate(jnp.asarray(u))
-        finally:
-            blocks.close()
-        final = tuple(np.asarray(x) for x in (e.residual, e.jacobian, e.differenced))
-        final += (np.zeros(0, int),)
-    r = final[0].reshape(mask.shape)
-    # a row that failed (its sentinel residual) or is undefined there is named
-    # by the full check, which raises
-    if np.any(mask & ((r == _FAILED_RESIDUAL) | ~np.isfinite(r))):
-        _check_predictions(problem, u, data, "at the fitted values")
-    pred, jac_u = np.where(mask, measured + sigma * r, np.nan), final[1]
-    resid = np.where(mask, (pred - measured) / sigma, np.nan)
-    cost = 0.5 * float(np.nansum(resid**2))
-    m, p = int(mask.sum()), len(x)
-    dof = m - p
-    notes = []
-    if not np.all(np.isfinite(pred[mask])) or not np.all(np.isfinite(jac_u)):
-        raise FloatingPointError(
-            "the fit reached parameters where the simulation is not finite: "
-            f"{dict(zip(names, x, strict=True))}; narrow the bounds"
-        )
-    with np.errstate(over="ignore"):
-        # Finite, but past what the covariance's J^T J can hold (|J| > 1e154):
-        # not a sensitivity, an overflowed integration of one (`_diverged`).
-        if not np.isfinite(np.sum(jac_u**2)):
-            raise _diverged(problem.experiment.settings)
-    # dx/du of each transform, to carry the covariance from u to x.
-    dx_du = np.asarray(
-        [
-            jax.grad(lambda v, t=t: t.forward(v))(float(u[i]))
-            for i, t in enumerate(problem.transforms)
-        ]
-    )
-    _, s, vt = np.linalg.svd(jac_u, full_matrices=False)
-    s_max = s[0] if s.size and s[0] > 0 else 1.0
-    weak = s < _RANK_TOL * s_max
-    if weak.any():
-        for k in np.nonzero(weak)[0]:
-            combo = " ".join(
-                f"{c:+.2f}*log({n})"
-                if problem.transforms[i].kind == "log"
-                else f"{c:+.2f}*{n}"
-                for i, (c, n) in enumerate(zip(vt[k], names, strict=True))
-                if abs(c) > 0.05
-            )
-            notes.append(
-                "the data cannot determine the combination "
-                f"[{combo}] (Jacobian singular-value ratio {s[k] / s_max:.1e}); "
-                "fix one of these parameters or add measurements sensitive to it"
-            )
-    s_eff = np.maximum(s, _SV_FLOOR * s_max)
-    cov_u = (vt.T / s_eff**2) @ vt
-    if absolute:
-        scale = 1.0
-    elif dof > 0:
-        scale = 2.0 * cost / dof
-    else:
-        scale = math.inf
-        notes.append(
-            f"{m} measurements for {p} parameters: no degrees of freedom left to "
-            "estimate the noise, so the standard errors are unknown (inf); add "
-            "sigma_ columns or more rows"
-        )
-    cov = (
-        scale * cov_u * np.outer(dx_du, dx_du)
-        if math.isfinite(scale)
-        else (np.full((p, p), math.inf))
-    )
-    se = np.sqrt(np.diag(cov)) if math.isfinite(scale) else np.full(p, math.inf)
-    # A parameter in an undetermined direction has no finite error, whatever
-    # the noise (with exact data the residual scale alone would make it look
-    # certain); its correlations still come from the floored singular values.
-    involved = np.any(np.abs(vt[weak]) > 0.05, axis=0) if weak.any() else []
-    for i in np.nonzero(involved)[0]:
-        se[i] = math.inf
-        cov[i, :] = cov[:, i] = math.inf
-    # One parameter on which the predictions barely depend has a full-rank
-    # Jacobian (the test above is relative to the largest singular value,
-    # and with one parameter that is its own), but an error far larger than
-    # itself: the data do not determine even its order of magnitude.
-    for i in np.nonzero(np.isfinite(se) & (se > _LOOSE * np.abs(x)))[0]:
-        notes.append(
-            f"the data barely determine {names[i]}: its standard error is "
-            f"{se[i] / abs(x[i]):.1e} times its value; fix it or add "
-            "measurements sensitive to it"
-        )
-    d = np.sqrt(np.diag(cov_u))
-    corr = cov_u / np.outer(d, d)
-    for i in range(p):
-        for j in range(i + 1, p):
-            if abs(corr[i, j]) > 0.99 and not weak.any():
-                notes.append(
-                    f"{names[i]} and {names[j]} are strongly correlated "
-                    f"({corr[i, j]:+.3f}): the data barely separate them"
-                )
-    if final is not None and int(np.sum(final[2])):
-        notes.append(
-            f"the forward-mode derivatives of {int(np.sum(final[2]))} row(s) "
-            "diverged at the fitted values (a solver artefact, e.g. in a stick "
-            "phase); their derivatives, and so the covariance, come from "
-            "central differences"
-        )
-    blocked = final[3] if final is not None else ()
-    if len(blocked):
-        where = ", ".join(str(row_label(data.lines, i)) for i in blocked[:5])
-        more = f" and {len(blocked) - 5} more" if len(blocked) > 5 else ""
-        notes.append(
-            f"{solver} did not converge: its last trial steps were rejected "
-            f"because the solves of {len(blocked)} row(s) failed there ({where}"
-            f"{more}), so it stopped at the edge of the region where they fail, "
-            "not at a minimum. Those rows need more solver steps: raise "
-            "max_steps of the experiment's SolverSettings (the command line's "
-            "--solver-steps; a stiff stick phase, e.g. a body of small "
-            "inertia, needs many), or check those rows"
-        )
-    elif not converged:
-        notes.append(
-            f"{solver} did not converge in {steps} iterations; raise max_steps or "
-            "start closer"
-        )
-    for msg in notes:
-        if "cannot determine" in msg or "correlated" in msg or "barely" in msg:
-            warnings.warn(msg, IdentifiabilityWarning, stacklevel=3)
-    return FitResult(
-        names=names,
-        values=x,
-        std_errors=se,
-        start=x0,
-        covariance=cov,
-        correlation=corr,
-        quantities=problem.quantities,
-        inputs={k: np.asarray(v) for k, v in data.inputs.items()},
-        measured=measured,
-        predicted=np.where(mask, pred, np.nan),
-        sigma=sigma,
-        residuals=resid,
-        cost=cost,
-        chi2_reduced=2.0 * cost / dof if dof > 0 else math.nan,
-        dof=dof,
-        absolute_sigma=absolute,
-        iterations=steps,
-        converged=converged,
-        solver=solver,
-        seconds=seconds,
-        singular_values=s,
-        warnings=tuple(notes),
-        experiment=dataclasses.replace(
-            problem.with_parameters(u), settings=user_settings
-        ),
-        sigma_measured=tuple(q in data.sigmas for q in problem.quantities),
-        lines=data.lines,
-        subsample=warm or (0, 0),
-    )
-
-
-class _Progress:
-    """A one-line text progress bar on stderr (no extra dependency)."""
-
-    def __init__(self, total, label, width=30):
-        self.total, self.label, self.width = total, label, width
-        self.t0 = time.perf_counter()
-        self.shown = 0  # length of the line on screen, to overwrite it whole
-
-    def _write(self, line: str, end: str = ""):
-        sys.stderr.write("\r" + line.ljust(self.shown) + end)
-        sys.stderr.flush()
-        self.shown = 0 if end else len(line)
-
-    def update(self, k, cost, text=None):
-        filled = int(self.width * min(k, self.total) / self.total)
-        bar = "#" * filled + "." * (self.width - filled)
-        dt = time.perf_counter() - self.t0
-        what = f"cost {cost:.4g}" if text is None else text
-        self._write(f"{self.label} [{bar}] step {k}/{self.total} {what} ({dt:.1f} s)")
-
-    def close(self):
-        sys.stderr.write("\n")  # keep the last bar on screen
-        sys.stderr.flush()
-        self.shown = 0
-
-    def message(self, text: str, end: str = ""):
-        """A status line (what is happening before or after the steps)."""
-        dt = time.perf_counter() - self.t0
-        self._write(f"{self.label}: {text} ({dt:.1f} s)", end)

@@ -10,7 +10,8 @@ import jax
 import jax.numpy as jnp
 
 from .._result import RESULTS
-from ._experiment import Experiment, getter, predict
+from ._experiment import Experiment, getter
+from ._predict import predict
 
 # Weighted residual given to a row whose prediction failed during the
 # iterations (outside the contact model, say): large and constant, so that a
@@ -88,7 +89,7 @@ class _Problem(eqx.Module):
     names: tuple[str, ...] = eqx.field(static=True)
     paths: tuple[str, ...] = eqx.field(static=True)
     quantities: tuple[str, ...] = eqx.field(static=True)
-    transforms: tuple = eqx.field(static=True)
+    transforms: tuple  # of `Transform`: numbers traced, so new starts reuse a compile
     chunk_size: int | None = eqx.field(static=True, default=None)
 
     def parameters(self, u):

@@ -27,8 +27,6 @@ from __future__ import annotations
 
 import functools
 import math
-import sys
-import time
 import zlib
 from collections.abc import Callable, Mapping, Sequence
 from typing import Any
@@ -43,6 +41,7 @@ from .._materials import Material
 from .._solve._settings import SolverSettings
 from .._solve._simulate import simulate
 from ..scenes import NormalImpact
+from ._progress import Progress
 
 # Rows per device in a chunk by default.  On CPU, small chunks are faster:
 # the quadrature's per-row temporaries (32 x 16 Gauss nodes, ~25 kB a row)
@@ -99,42 +98,6 @@ def _positive_int(x, name: str) -> int:
     if isinstance(x, bool) or not isinstance(x, int | np.integer) or x <= 0:
         raise ValueError(f"`{name}` must be an integer > 0, got {x!r}")
     return int(x)
-
-
-# --------------------------------------------------------------------------
-# Progress bar (plain text to stderr: no extra dependency)
-# --------------------------------------------------------------------------
-
-
-class _Progress:
-    """``[######......]  42%  420,000/1,000,000  12.1 s  34,700/s  ETA 17 s``.
-
-    Redrawn in place with a carriage return, at most every 0.2 s."""
-
-    def __init__(self, total: int, stream=None, width: int = 30):
-        self.total, self.width = total, width
-        self.stream = sys.stderr if stream is None else stream
-        self.t0 = time.perf_counter()
-        self.last = -math.inf
-
-    def update(self, done: int, final: bool = False):
-        now = time.perf_counter()
-        if not final and now - self.last < 0.2:
-            return
-        self.last = now
-        elapsed = now - self.t0
-        frac = done / self.total
-        filled = int(round(self.width * frac))
-        rate = done / elapsed if elapsed > 0 else 0.0
-        eta = (self.total - done) / rate if rate > 0 else math.inf
-        eta_txt = f"ETA {eta:.0f} s" if math.isfinite(eta) else "ETA ?"
-        line = (
-            f"\r[{'#' * filled}{'.' * (self.width - filled)}] {100 * frac:3.0f}%  "
-            f"{done:,}/{self.total:,}  {elapsed:.1f} s  {rate:,.0f}/s  "
-            f"{'done' if final else eta_txt}"
-        )
-        self.stream.write(line + ("\n" if final else ""))
-        self.stream.flush()
 
 
 # --------------------------------------------------------------------------
@@ -286,7 +249,11 @@ def sweep(
         return jax.tree_util.tree_unflatten(tdef, out)
 
     out_leaves, out_def = None, None
-    bar = _Progress(n) if progress and jax.process_index() == 0 else None
+    bar = (
+        Progress(n, rate=True, every=0.2)
+        if progress and jax.process_index() == 0
+        else None
+    )
     if bar is not None:
         bar.update(0, final=False)  # shown during the first compilation
 

@@ -21,21 +21,21 @@ import jax.numpy as jnp
 
 
 class Transform(eqx.Module):
-    lower: float = eqx.field(static=True)
-    upper: float = eqx.field(static=True)
-    start: float = eqx.field(static=True)
-    scale: float = eqx.field(static=True)
+    """A bound as a map from the unconstrained ``u`` to the parameter ``x``.
 
-    @property
-    def kind(self) -> str:
-        lo, hi = self.lower, self.upper
-        if lo == 0.0 and hi == math.inf:
-            return "log"
-        if math.isfinite(lo) and math.isfinite(hi):
-            return "sigmoid"
-        if math.isfinite(lo) or math.isfinite(hi):
-            return "softplus"
-        return "affine"
+    Which map (`kind`) is structure, fixed by which bounds are finite; the
+    numbers (bounds, start value, scale) are arrays, so that a fit compiled
+    once serves every start value and bound of the same kind."""
+
+    kind: str = eqx.field(static=True)  # "log", "sigmoid", "softplus", "affine"
+    lower_finite: bool = eqx.field(static=True)  # softplus: (lo, inf), else (-inf, hi)
+    lower: jax.Array
+    upper: jax.Array
+    start: jax.Array
+    scale: jax.Array
+
+    def _floats(self) -> tuple[float, float, float, float]:
+        return tuple(float(v) for v in (self.lower, self.upper, self.start, self.scale))
 
     def forward(self, u):
         """Unconstrained ``u`` -> parameter ``x``."""
@@ -48,7 +48,7 @@ class Transform(eqx.Module):
         if kind == "softplus":
             return (
                 lo + s * jax.nn.softplus(u)
-                if math.isfinite(lo)
+                if self.lower_finite
                 else (hi - s * jax.nn.softplus(u))
             )
         return x0 + s * u
@@ -58,15 +58,16 @@ class Transform(eqx.Module):
         lo, hi, s = self.lower, self.upper, self.scale
         kind = self.kind
         if kind == "log":
-            return math.log(self.start) + u
+            return jnp.log(self.start) + u
         if kind == "sigmoid":
-            return math.log(hi - lo) + jax.nn.log_sigmoid(u) + jax.nn.log_sigmoid(-u)
+            return jnp.log(hi - lo) + jax.nn.log_sigmoid(u) + jax.nn.log_sigmoid(-u)
         if kind == "softplus":
-            return math.log(s) + jax.nn.log_sigmoid(u)
-        return math.log(s) + 0.0 * u
+            return jnp.log(s) + jax.nn.log_sigmoid(u)
+        return jnp.log(s) + 0.0 * u
 
     def inverse(self, x: float) -> float:
-        lo, hi, x0, s = self.lower, self.upper, self.start, self.scale
+        """Parameter ``x`` -> unconstrained ``u`` (on the host, in floats)."""
+        lo, hi, x0, s = self._floats()
         kind = self.kind
         if kind == "log":
             return math.log(x / x0)
@@ -76,7 +77,7 @@ class Transform(eqx.Module):
             p = min(max((x - lo) / (hi - lo), 1e-15), 1.0 - 1e-15)
             return math.log(p / (1.0 - p))
         if kind == "softplus":
-            z = (x - lo) / s if math.isfinite(lo) else (hi - x) / s
+            z = (x - lo) / s if self.lower_finite else (hi - x) / s
             z = max(z, 1e-15)  # on the bound: large negative u, not log(0)
             return z + math.log(-math.expm1(-z))  # inverse softplus
         return (x - x0) / s
@@ -99,4 +100,13 @@ def make_transform(name: str, start: float, bounds) -> Transform:
             f"bounds ({lo}, {hi}); pass a start value or wider bounds"
         )
     scale = abs(start) if start != 0.0 else 1.0
-    return Transform(lo, hi, start, scale)
+    if lo == 0.0 and hi == math.inf:
+        kind = "log"
+    elif math.isfinite(lo) and math.isfinite(hi):
+        kind = "sigmoid"
+    elif math.isfinite(lo) or math.isfinite(hi):
+        kind = "softplus"
+    else:
+        kind = "affine"
+    numbers = (jnp.asarray(v, dtype=float) for v in (lo, hi, start, scale))
+    return Transform(kind, math.isfinite(lo), *numbers)
