@@ -261,13 +261,24 @@ def static_positive(owner: str, name: str, value, allow_none=False) -> None:
         raise ValueError(f"`{owner}.{name}` must be a finite number > 0, got {value!r}")
 
 
-def static_count(owner: str, name: str, value, minimum: int = 1) -> None:
-    """A static (Python) integer setting >= ``minimum``."""
+def integer(name: str, value, minimum: int = 1) -> int:
+    """A Python or NumPy integer (not a bool) >= ``minimum``, as an ``int``;
+    ValueError naming ``name`` otherwise.  The one integer check of the
+    package: settings, sampler counts, sweep chunks."""
     is_int = isinstance(value, int | np.integer) and not isinstance(value, bool)
     if not (is_int and value >= minimum):
-        raise ValueError(
-            f"`{owner}.{name}` must be an integer >= {minimum}, got {value!r}"
-        )
+        raise ValueError(f"`{name}` must be an integer >= {minimum}, got {value!r}")
+    return int(value)
+
+
+def static_count(owner: str, name: str, value, minimum: int = 1) -> None:
+    """A static (Python) integer setting >= ``minimum``."""
+    integer(f"{owner}.{name}", value, minimum)
+
+
+def optional_float(x):
+    """``as_float`` that keeps ``None`` (an optional numeric field)."""
+    return None if x is None else as_float(x)
 
 
 def plain_number(value):

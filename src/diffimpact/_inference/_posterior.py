@@ -39,6 +39,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from .._checks import integer
 from .._result import RESULTS, SolverError
 from ._experiment import get_path, resolve_parameter, with_parameters
 from ._fit import fit
@@ -52,10 +53,6 @@ from ._residuals import _predictions
 
 
 def _check_counts(num_samples, num_warmup, num_chains, seed, target, depth):
-    def integer(name, v, low):
-        if isinstance(v, bool) or not isinstance(v, int | np.integer) or v < low:
-            raise ValueError(f"`{name}` must be an integer >= {low}, got {v!r}")
-
     integer("num_samples", num_samples, 20)
     integer("num_warmup", num_warmup, 20)
     integer("num_chains", num_chains, 1)

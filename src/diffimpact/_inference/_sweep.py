@@ -36,6 +36,7 @@ import jax.numpy as jnp
 import numpy as np
 from jax.sharding import Mesh, NamedSharding, PartitionSpec
 
+from .._checks import integer
 from .._laws._jackson_green import JacksonGreen
 from .._materials import Material
 from .._solve._settings import SolverSettings
@@ -92,12 +93,6 @@ def _rows(inputs, name: str = "inputs") -> tuple[int, list, Any]:
     if n == 0:
         raise ValueError(f"`{name}` has 0 rows: the sweep is empty")
     return n, leaves, treedef
-
-
-def _positive_int(x, name: str) -> int:
-    if isinstance(x, bool) or not isinstance(x, int | np.integer) or x <= 0:
-        raise ValueError(f"`{name}` must be an integer > 0, got {x!r}")
-    return int(x)
 
 
 # --------------------------------------------------------------------------
@@ -205,7 +200,7 @@ def sweep(
         raise ValueError("`devices` is empty: give at least one device")
     if chunk_size is None:
         chunk_size = default_chunk_size(devices)
-    chunk_size = _positive_int(chunk_size, "chunk_size")
+    chunk_size = integer("chunk_size", chunk_size)
     n_dev = len(devices)
     # Never compute more padding than one device's share, and keep every
     # device's share equal (NamedSharding needs divisibility).
@@ -306,7 +301,7 @@ def sweep_map(fn: Callable, inputs, *, batch_size: int | None = None):
     n, _, _ = _rows(inputs)
     if batch_size is None:
         return jax.vmap(fn)(inputs)
-    batch_size = _positive_int(batch_size, "batch_size")
+    batch_size = integer("batch_size", batch_size)
     return jax.lax.map(fn, inputs, batch_size=min(batch_size, n))
 
 
@@ -358,7 +353,7 @@ def sample(key, n: int, **ranges) -> dict[str, np.ndarray]:
     **Returns:** a dict of float arrays (float64 under diffimpact's default),
     as numpy.
     """
-    n = _positive_int(n, "n")
+    n = integer("n", n)
     if not ranges:
         raise ValueError("`sample` needs at least one range, e.g. velocity=(0.1, 10)")
     if isinstance(key, int | np.integer):

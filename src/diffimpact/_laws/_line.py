@@ -46,7 +46,7 @@ import jax
 import jax.numpy as jnp
 from jaxtyping import Array
 
-from .._checks import as_float, check, positive
+from .._checks import as_float, check, optional_float, positive
 from .._materials import ContactProperties
 from ._base import AbstractBoundLaw, AbstractNormalLaw
 
@@ -61,10 +61,6 @@ _LOG_SCALE = 10.0
 
 def _newton(u, log_y):
     return u - (u - jnp.log(u - 1.0) + log_y) * (u - 1.0) / (u - 2.0)
-
-
-def _optional_float(x):
-    return None if x is None else as_float(x)
 
 
 class LineContact(AbstractNormalLaw):
@@ -84,7 +80,7 @@ class LineContact(AbstractNormalLaw):
     """
 
     length: Array = eqx.field(converter=as_float)
-    cor: Array | None = eqx.field(default=None, converter=_optional_float)
+    cor: Array | None = eqx.field(default=None, converter=optional_float)
 
     def _checks(self):
         out = [positive(self.length, "LineContact.length", "m")]

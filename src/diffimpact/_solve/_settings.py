@@ -8,7 +8,28 @@ import equinox as eqx
 from .._checks import plain_number, static_count, static_positive
 
 
-class SolverSettings(eqx.Module):
+class AbstractSettings(eqx.Module):
+    """The numerical settings every solve shares (`SolverSettings` for one
+    impact, `SpanSettings` for a span): the diffrax solver and its
+    tolerances, the step budget, the widths of the smooth switches and the
+    adjoint.  Each subclass documents them with its own defaults."""
+
+    solver: diffrax.AbstractSolver = eqx.field(static=True, default=diffrax.Dopri8())
+    rtol: float = eqx.field(static=True, converter=plain_number, default=1e-11)
+    atol: float = eqx.field(static=True, converter=plain_number, default=1e-13)
+    velocity_width: float = eqx.field(static=True, converter=plain_number, default=1e-4)
+    phase_width: float = eqx.field(static=True, converter=plain_number, default=1e-4)
+    max_steps: int = eqx.field(static=True, converter=plain_number, default=4096)
+    slip_width: float = eqx.field(static=True, converter=plain_number, default=1e-4)
+    adjoint: diffrax.AbstractAdjoint = eqx.field(
+        static=True, default=diffrax.RecursiveCheckpointAdjoint()
+    )
+
+    def __check_init__(self):
+        check_settings(self)
+
+
+class SolverSettings(AbstractSettings):
     """Numerical settings of `diffimpact.simulate`.
 
     The solve runs in the impact's own units: lengths in ``d_ref``, the Hertz-like
@@ -58,22 +79,11 @@ class SolverSettings(eqx.Module):
       gradient then belongs to another step sequence (see ``_simulate._solve``).
     """
 
-    solver: diffrax.AbstractSolver = eqx.field(static=True, default=diffrax.Dopri8())
-    rtol: float = eqx.field(static=True, converter=plain_number, default=1e-11)
-    atol: float = eqx.field(static=True, converter=plain_number, default=1e-13)
-    velocity_width: float = eqx.field(static=True, converter=plain_number, default=1e-4)
-    phase_width: float = eqx.field(static=True, converter=plain_number, default=1e-4)
-    max_steps: int = eqx.field(static=True, converter=plain_number, default=4096)
     max_time: float = eqx.field(static=True, converter=plain_number, default=100.0)
     event_tol: float = eqx.field(static=True, converter=plain_number, default=1e-13)
     quadrature_order: int = eqx.field(static=True, converter=plain_number, default=32)
-    slip_width: float = eqx.field(static=True, converter=plain_number, default=1e-4)
-    adjoint: diffrax.AbstractAdjoint = eqx.field(
-        static=True, default=diffrax.RecursiveCheckpointAdjoint()
-    )
 
     def __check_init__(self):
-        check_settings(self)
         # Below 8 Gauss-Legendre nodes the quadrature is not converged (a JG
         # impact's COR: 12 % off at 2 nodes, 4e-4 at 4, 1e-10 at 8).
         static_count("SolverSettings", "quadrature_order", self.quadrature_order, 8)

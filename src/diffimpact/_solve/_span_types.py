@@ -4,16 +4,15 @@ from __future__ import annotations
 
 import math
 
-import diffrax
 import equinox as eqx
 from jaxtyping import Array
 
 from .._checks import plain_number, static_positive
 from .._result import RESULTS
-from ._settings import check_settings
+from ._settings import AbstractSettings
 
 
-class SpanSettings(eqx.Module):
+class SpanSettings(AbstractSettings):
     """Numerical settings of `simulate_span`.
 
     The solve runs on the scene's reference scales (``scene.scales()``:
@@ -78,9 +77,6 @@ class SpanSettings(eqx.Module):
     - `adjoint`: as in `SolverSettings`.
     """
 
-    solver: diffrax.AbstractSolver = eqx.field(static=True, default=diffrax.Dopri8())
-    rtol: float = eqx.field(static=True, converter=plain_number, default=1e-11)
-    atol: float = eqx.field(static=True, converter=plain_number, default=1e-13)
     dtmax: float | None = eqx.field(static=True, converter=plain_number, default=None)
     onset_step: float | None = eqx.field(
         static=True, converter=plain_number, default=1e-3
@@ -94,15 +90,8 @@ class SpanSettings(eqx.Module):
     factormax: float = eqx.field(static=True, converter=plain_number, default=10.0)
     max_steps: int = eqx.field(static=True, converter=plain_number, default=16384)
     max_impacts: int = eqx.field(static=True, converter=plain_number, default=64)
-    velocity_width: float = eqx.field(static=True, converter=plain_number, default=1e-4)
-    phase_width: float = eqx.field(static=True, converter=plain_number, default=1e-4)
-    slip_width: float = eqx.field(static=True, converter=plain_number, default=1e-4)
-    adjoint: diffrax.AbstractAdjoint = eqx.field(
-        static=True, default=diffrax.RecursiveCheckpointAdjoint()
-    )
 
     def __check_init__(self):
-        check_settings(self)
         if self.tangent_rtol not in (None, "auto"):
             try:
                 static_positive("SpanSettings", "tangent_rtol", self.tangent_rtol)

@@ -15,10 +15,16 @@ import equinox as eqx
 import jax.numpy as jnp
 from jaxtyping import Array
 
-from .._checks import AbstractValidated, as_float, check, positive, require
+from .._checks import (
+    AbstractValidated,
+    as_float,
+    check,
+    optional_float,
+    positive,
+    require,
+)
 from .._materials import Material, contact_properties
 from ._base import rod_inertia
-from ._link import optional_float
 from ._planar import AbstractPlanarScene
 
 

@@ -10,7 +10,7 @@ import jax
 import jax.numpy as jnp
 from jaxtyping import Array
 
-from .._checks import as_float, check, finite, positive_fields
+from .._checks import as_float, check, finite, optional_float, positive_fields
 from .._materials import Material, contact_properties
 from ._planar import AbstractPlanarScene
 from ._shapes import AbstractShape, down, down_change
@@ -21,10 +21,6 @@ from ._shapes import AbstractShape, down, down_change
 # this many steps (an exact graze converges only like 1/steps).
 _TOUCH_TOL = 1e-9
 _ADVANCE_STEPS = 100_000
-
-
-def _optional_float(x):
-    return None if x is None else as_float(x)
 
 
 class PlanarBody(AbstractPlanarScene):
@@ -99,7 +95,7 @@ class PlanarBody(AbstractPlanarScene):
     com_y: Array = eqx.field(converter=as_float, default=0.0)
     incline: Array = eqx.field(converter=as_float, default=0.0)
     gravity: Array = eqx.field(converter=as_float, default=9.81)
-    height: Array | None = eqx.field(converter=_optional_float, default=None)
+    height: Array | None = eqx.field(converter=optional_float, default=None)
 
     def _checks(self):
         com = jnp.stack([self.com_x, self.com_y])

@@ -34,9 +34,8 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array
 
-from .._checks import check
+from .._checks import check, optional_float
 from ._bar import FreeBar
-from ._link import optional_float
 
 
 @functools.cache

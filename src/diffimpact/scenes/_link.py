@@ -12,16 +12,10 @@ import equinox as eqx
 import jax.numpy as jnp
 from jaxtyping import Array
 
-from .._checks import as_float, check, positive, require
+from .._checks import as_float, check, optional_float, positive, require
 from .._materials import Material, contact_properties
 from ._base import NormalProblem, rod_inertia
 from ._planar import AbstractPlanarScene
-
-
-def optional_float(x):
-    """``as_float`` that keeps ``None`` (an optional numeric field)."""
-    return None if x is None else as_float(x)
-
 
 _IMPACT_ANGLE = "`RotatingLink.impact_angle` must lie in (0, pi/2) rad"
 _RELEASE_ANGLE = (

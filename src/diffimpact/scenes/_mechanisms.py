@@ -48,10 +48,17 @@ import jax
 import jax.numpy as jnp
 from jaxtyping import Array
 
-from .._checks import AbstractValidated, as_float, check, finite, nonnegative, positive
+from .._checks import (
+    AbstractValidated,
+    as_float,
+    check,
+    finite,
+    nonnegative,
+    optional_float,
+    positive,
+)
 from .._materials import ContactProperties, Material, contact_properties
 from ._bar import AbstractRod, FreeBar
-from ._link import optional_float
 
 
 class MechanismScales(eqx.Module):
