@@ -640,7 +640,7 @@ def fmt_times(times: Sequence[float], base: Sequence[float] | None = None) -> li
 
 
 def normal_state_size(problem: NormalProblem, law) -> int:
-    """Size of the smooth 1-DOF state (``_normal_solve._y0``)."""
+    """Size of the smooth 1-DOF state (``_normal._y0``)."""
     return len(jax.tree.leaves(_y0(_bind(law, problem), jnp.float64, smooth=True)))
 
 

@@ -1,5 +1,5 @@
 """The package's import graph: no circle, no module hiding one behind an
-import inside a function, and the family rule (docs/architecture.md): the
+import inside a function, and the family rule (docs/layout.md): the
 families sit on levels, each imports only from its own level or below, and
 nothing whose name starts with ``_`` is imported from another family."""
 

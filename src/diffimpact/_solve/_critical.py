@@ -2,7 +2,7 @@
 
 The switch is located on the smooth solve's slip diagnostics
 (``result.extras["min_slip_ratio"]`` / ``["final_slip_ratio"]``, see
-``_planar_solve.py``) with a differentiable root search: Brent's method on
+``_planar.py``) with a differentiable root search: Brent's method on
 forward solves finds each root, and a custom_jvp supplies the implicit
 derivative ``d angle / d theta = -(dg/dtheta) / (dg/d angle)`` (the rule of
 ``_root.newton_root``), so ``jax.grad`` of a critical angle with respect to any

@@ -11,7 +11,7 @@ slip with friction are not states: they are running extrema of the accepted
 steps (`diffimpact._solve._extrema`), so every state feeds back into the motion and
 the step-size control weighs them alike (which also lets an implicit solver
 converge its stage equations). The normal force is the same smooth-switched law
-as the 1-DOF path (``_normal_solve._smooth_force``); friction (F-1 or F-2) is
+as the 1-DOF path (``_normal._smooth_force``); friction (F-1 or F-2) is
 the exact-hold law of `Friction`, fed with the scene's holding force
 (`_Planar.holding_force`).
 

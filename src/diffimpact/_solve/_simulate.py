@@ -1,10 +1,10 @@
 """One impact, from first contact to separation: `simulate`.
 
-Three methods share one post-processing step (``_normal_solve._assemble``):
-``"smooth"`` and ``"events"`` (diffrax solves, `._normal_solve`) and
+Three methods share one post-processing step (``_normal._assemble``):
+``"smooth"`` and ``"events"`` (diffrax solves, `._normal`) and
 ``"quadrature"`` (the ODE-free energy solution, `._quadrature`); planar
 scenes with friction, or whose rotation couples to the normal motion, are
-solved by `._planar_solve`.
+solved by `._planar`.
 """
 
 from __future__ import annotations
