@@ -107,8 +107,15 @@ _ERRORS = {
 
 
 def result_name(code: int) -> str:
-    """The name (``"outside_model"``, ...) of an integer result code."""
-    return _NAMES[int(code)]
+    """The name (``"outside_model"``, ...) of an integer result code; a
+    ValueError naming the valid codes for any other integer."""
+    try:
+        return _NAMES[int(code)]
+    except (KeyError, TypeError, ValueError):
+        valid = ", ".join(f"{k} ({v})" for k, v in sorted(_NAMES.items()))
+        raise ValueError(
+            f"{code!r} is not a result code; the codes are {valid}"
+        ) from None
 
 
 _NAMES = {int(getattr(RESULTS, n)._value): n for n in ("successful", *_ERRORS)}

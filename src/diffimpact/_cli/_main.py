@@ -10,6 +10,7 @@ import dataclasses
 import logging
 import math
 import os
+import re
 import sys
 import time
 import warnings
@@ -147,14 +148,32 @@ _MATERIAL_FLAGS = (
 _MATERIAL_FLAGS_BY_FIELD = [(field, flag) for flag, field in _MATERIAL_FLAGS]
 
 
+# Stresses below this many pascals are no solid's modulus or yield strength:
+# such a flag was almost surely typed in MPa or GPa (soft rubbers start near
+# 1e5 Pa).
+_LEAST_STRESS = 1e4
+_NAMES = {"youngs_modulus": "Young's modulus", "yield_strength": "yield strength"}
+
+
 def _material_flags(args) -> dict:
-    """``{"scene.body.youngs_modulus": value, ...}`` of the material flags given."""
+    """``{"scene.body.youngs_modulus": value, ...}`` of the material flags
+    given; a stress flag a million times too small for any solid is refused
+    with the unit it was probably typed in."""
     out = {}
     for who in ("body", "flat"):
         for flag, field in _MATERIAL_FLAGS:
             value = getattr(args, f"{who}_{flag}")
-            if value is not None:
-                out[f"scene.{who}.{field}"] = value
+            if value is None:
+                continue
+            if flag != "poisson" and 0 < value < _LEAST_STRESS:
+                unit = "GPa" if flag == "modulus" and value < 1e3 else "MPa"
+                scale = 1e9 if unit == "GPa" else 1e6
+                raise ValueError(
+                    f"--{who}-{flag} {value:g}: flags are in Pa, and {value:g} Pa is "
+                    f"no solid's {_NAMES[field]}; for {value:g} {unit} "
+                    f"give {value * scale:g}"
+                )
+            out[f"scene.{who}.{field}"] = value
     return out
 
 
@@ -339,10 +358,28 @@ def simulate_cmd(args) -> int:
     return 0
 
 
+_NEGATIVE = re.compile(r"^-(?:[0-9]+\.?[0-9]*|\.[0-9]+)(?:[eE][+-]?[0-9]+)?$|^-inf$")
+
+
+def _version() -> str:
+    """``diffimpact X`` with the versions of the libraries a result depends
+    on (read from the installed metadata: nothing is imported)."""
+    from importlib.metadata import PackageNotFoundError, version
+
+    parts = []
+    for name in ("diffimpact", "jax", "diffrax", "equinox", "optimistix"):
+        try:
+            parts.append(f"{name} {version(name)}")
+        except PackageNotFoundError:
+            parts.append(f"{name} (not installed)")
+    return ", ".join(parts)
+
+
 def main(argv=None) -> int:
     parser = argparse.ArgumentParser(
         prog="diffimpact", description="Differentiable impact simulation in JAX."
     )
+    parser.add_argument("--version", action="version", version=_version())
     sub = parser.add_subparsers(dest="command", required=True)
     p = sub.add_parser(
         "demo", help="simulate a steel ball on a steel plate, all methods"
@@ -409,6 +446,10 @@ def main(argv=None) -> int:
     _cli_sweep.register(sub)
 
     argv = sys.argv[1:] if argv is None else list(argv)
+    for each in (parser, *sub.choices.values()):
+        # A flag's value may be a negative number in any notation
+        # (``--flat-modulus -2e11``), not only ``-2`` or ``-0.5``.
+        each._negative_number_matcher = _NEGATIVE
     args = parser.parse_args(_cli_fit.bare_compliant(argv))
     return run_command(args.func, args)
 

@@ -50,11 +50,14 @@ class Quantity:
     nonnegative: bool
     doc: str
     maximum: float = math.inf  # largest physically possible value (SI)
+    magnitude: bool = False  # the maximum bounds |value|, not value
 
 
 # name | dimension | role | sign (">= 0" or "any") | what it is.  A normal COR
 # above 1 would be a rebound with more energy than the approach: no passive
-# impact does that (the ``max 1`` column).
+# impact does that (the ``max 1`` column).  Nor can friction on a flat, which
+# only opposes the slip, leave a ball dropped without spin with more
+# tangential speed than it came with: |e_t| <= 1 (``abs 1``).
 _TABLE = """
 drop_height           | length           | input  | >= 0 | height of the drop
 impact_velocity       | velocity         | input  | >= 0 | normal approach speed
@@ -75,7 +78,7 @@ angular_velocity      | angular_velocity | output | any  | spin after
 velocity_x_after      | velocity         | output | any  | centre-of-mass velocity along the flat after the impact
 velocity_y_after      | velocity         | output | any  | centre-of-mass velocity normal to the flat after the impact
 cor_normal            | dimensionless    | output | >= 0 | Newton's COR e_n | max 1
-cor_tangential        | dimensionless    | output | any  | tangential COR e_t of the centre of mass
+cor_tangential        | dimensionless    | output | any  | tangential COR e_t of the centre of mass | abs 1
 max_force             | force            | output | >= 0 | peak normal contact force
 max_deflection        | length           | output | >= 0 | maximum interference d_m
 permanent_deformation | length           | output | >= 0 | residual interference d_r
@@ -90,8 +93,12 @@ jacobian_tangent_angular | length        | check  | any  | contact Jacobian, tan
 
 def _quantity(row: str) -> Quantity:
     name, dimension, role, sign, doc, *limit = (c.strip() for c in row.split("|"))
-    maximum = float(limit[0].removeprefix("max ")) if limit else math.inf
-    return Quantity(name, dimension, role, sign == ">= 0", doc, maximum)
+    maximum = math.inf
+    magnitude = False
+    if limit:
+        kind, _, value = limit[0].partition(" ")
+        maximum, magnitude = float(value), kind == "abs"
+    return Quantity(name, dimension, role, sign == ">= 0", doc, maximum, magnitude)
 
 
 QUANTITIES: dict[str, Quantity] = {
@@ -462,10 +469,12 @@ def _cell(text: str, col: Column, path: str, lineno: int) -> float:
             f"{where}: {text} is negative; {q.name} ({q.doc}) must be >= 0 "
             f"in {col.unit or SI[q.dimension]}"
         )
-    if not col.is_sigma and x * col.factor > q.maximum:
+    size = abs(x) if q.magnitude else x
+    if not col.is_sigma and size * col.factor > q.maximum:
+        what = f"|{q.name}|" if q.magnitude else q.name
         raise DataError(
             f"{where}: {text} exceeds {q.maximum:g}, the largest physically "
-            f"possible {q.name} ({q.doc})"
+            f"possible {what} ({q.doc})"
         )
     return x
 

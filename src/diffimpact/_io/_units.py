@@ -34,6 +34,16 @@ UNITS: dict[str, tuple[str, float]] = {
     "kg_m3": ("density", 1.0),
     "g_cm3": ("density", 1e3),
     "m_s2": ("acceleration", 1.0),
+    # US customary units, by their exact SI definitions (international yard
+    # and pound, 1959; standard gravity for the pound-force)
+    "in": ("length", 0.0254),
+    "ft": ("length", 0.3048),
+    "in_s": ("velocity", 0.0254),
+    "ft_s": ("velocity", 0.3048),
+    "lb": ("mass", 0.45359237),
+    "lbf": ("force", 0.45359237 * 9.80665),
+    "psi": ("stress", 0.45359237 * 9.80665 / 0.0254**2),
+    "ksi": ("stress", 1e3 * 0.45359237 * 9.80665 / 0.0254**2),
 }
 
 SI = {

@@ -1,0 +1,87 @@
+"""A newcomer's edges: the version, the module entry point, result codes,
+negative and mistyped numbers after flags, US customary units and the
+physical range of a tangential COR."""
+
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+
+import diffimpact as di
+from diffimpact._cli._main import main
+
+
+@pytest.mark.parametrize(
+    "entry", [["diffimpact"], [sys.executable, "-m", "diffimpact"]]
+)
+def test_version_names_the_libraries(entry):
+    out = subprocess.run(
+        [*entry, "--version"], capture_output=True, text=True, check=True
+    ).stdout
+    for name in ("diffimpact", "jax", "diffrax", "equinox"):
+        assert f"{name} " in out
+    assert out.startswith(f"diffimpact {di.__version__}")
+
+
+def test_an_unknown_result_code_names_the_valid_ones():
+    assert di.result_name(0) == "successful"
+    with pytest.raises(ValueError, match=r"8 is not a result code.*0 \(successful\)"):
+        di.result_name(8)
+
+
+def test_a_negative_number_in_exponent_notation_reaches_the_check(capsys):
+    """argparse reads ``-2e11`` as a flag unless told otherwise; the value
+    must reach the material's own check, which names the field."""
+    assert main(["simulate", "--flat-modulus", "-2e11"]) != 0
+    err = capsys.readouterr().err
+    assert "Material.youngs_modulus` must be a finite number > 0" in err
+    assert "expected one argument" not in err
+
+
+@pytest.mark.parametrize(
+    "flag, value, hint",
+    [
+        ("--flat-yield", "355", "for 355 MPa give 3.55e+08"),
+        ("--body-modulus", "208", "for 208 GPa give 2.08e+11"),
+    ],
+)
+def test_a_stress_typed_in_mpa_gets_the_unit_hint(capsys, flag, value, hint):
+    assert main(["simulate", flag, value]) != 0
+    err = capsys.readouterr().err
+    assert "flags are in Pa" in err and hint in err
+    assert "Traceback" not in err
+
+
+def test_us_customary_units_are_read_by_their_definitions(tmp_path):
+    """1 ft = 0.3048 m and 1 in = 0.0254 m exactly (international yard,
+    1959): a drop height in feet is the same row as one in metres."""
+    path = tmp_path / "ft.csv"
+    path.write_text(
+        "scene,drop_height_ft,angle_deg,cor_normal\nsphere_on_incline,1.0,30,0.5\n"
+    )
+    data = di.load_experiments(path)
+    np.testing.assert_allclose(data.inputs["drop_height"], [0.3048], rtol=1e-15)
+    path.write_text("scene,drop_height_furlong,angle_deg\nsphere_on_incline,1,30\n")
+    with pytest.raises(di.DataError, match="unit 'furlong' does not fit"):
+        di.load_experiments(path)
+
+
+def test_a_tangential_cor_beyond_one_is_refused(tmp_path):
+    """The ball-prism file with one e_t mistyped as 4.91 (for 0.491): no fit
+    'converges' on it; the loader names the line and column."""
+    lines = open("data/ball_prism.csv").read().splitlines()
+    first = next(i for i, x in enumerate(lines) if x.startswith("sphere_on_incline"))
+    cells = lines[first].split(",")
+    cells[-1] = "4.91"
+    lines[first] = ",".join(cells)
+    path = tmp_path / "typo.csv"
+    path.write_text("\n".join(lines) + "\n")
+    with pytest.raises(
+        di.DataError, match=rf"line {first + 1}, column 'cor_tangential'"
+    ):
+        di.load_experiments(path)
+    cells[-1] = "-0.2"  # a reversed tangential velocity is possible
+    lines[first] = ",".join(cells)
+    path.write_text("\n".join(lines) + "\n")
+    assert di.load_experiments(path).outputs["cor_tangential"][0] == -0.2
