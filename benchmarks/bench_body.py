@@ -32,7 +32,7 @@ STEEL = di.Material(200e9, 0.3, np.inf, 7850.0)
 FLAT = di.Material(205e9, 0.29, 400e6, 7850.0)
 BODY = S.PlanarBody(
     0.05, 0.05 * (0.03**2 + 0.015**2) / 4, S.Ellipse(0.03, 0.015), STEEL, FLAT,
-    angle=0.0, velocity_x=0.0, velocity_y=-2.0, com_x=0.005,
+    orientation=0.0, velocity_x=0.0, velocity_y=-2.0, com_x=0.005,
 )  # fmt: skip
 TRUTH = di.Experiment(BODY, di.JacksonGreen(), di.Friction(0.25))
 OUT = ("velocity_x_after", "velocity_y_after", "angular_velocity")

@@ -66,9 +66,9 @@ def rod(mass, body, modes, height=0.3, angle=np.pi / 4, **kw):
     """`FreeBar` (``modes`` None) or `FlexibleBar` with ``modes = (axial,
     bending)``."""
     if modes is None:
-        return scenes.FreeBar(mass, body, PLATE, height, angle=angle)
+        return scenes.FreeBar(mass, body, PLATE, height=height, tilt=angle)
     return scenes.FlexibleBar(
-        mass, body, PLATE, height, angle=angle, axial_modes=modes[0],
+        mass, body, PLATE, height=height, tilt=angle, axial_modes=modes[0],
         bending_modes=modes[1], **kw,
     )  # fmt: skip
 

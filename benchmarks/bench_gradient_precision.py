@@ -46,7 +46,7 @@ RTOLS = (1e-8, 1e-9, 1e-10, 1e-11, 1e-12)
 def outputs(p, method, settings):
     v, s_y = p
     mat = di.Material(210e9, 0.3, s_y, DENSITY)
-    scene = di.scenes.NormalImpact(MASS, RADIUS, mat, mat, v)
+    scene = di.scenes.NormalImpact(MASS, RADIUS, mat, mat, velocity=v)
     r = di.simulate(scene, di.JacksonGreen(), method, settings=settings)
     return jnp.stack([r.cor_newton, r.contact_time])
 

@@ -71,7 +71,13 @@ CHI = 0.5 * RATIO * (1.0 + 1.0 / 0.4)
 def scene(psi1):
     angle = math.atan(psi1 * MU / RATIO)
     return di.scenes.SphereOnIncline(
-        M, R, STEEL, STEEL, angle, SPEED**2 / (2 * GRAVITY), GRAVITY
+        M,
+        R,
+        STEEL,
+        STEEL,
+        incline=angle,
+        height=SPEED**2 / (2 * GRAVITY),
+        gravity=GRAVITY,
     )
 
 
@@ -92,7 +98,13 @@ def smooth_row(friction, repeats, continuum):
     def e_t(mu, angle):
         f = type(friction)(mu, compliant=friction.compliant, annuli=friction.annuli)
         sc = di.scenes.SphereOnIncline(
-            M, R, STEEL, STEEL, angle, SPEED**2 / (2 * GRAVITY), GRAVITY
+            M,
+            R,
+            STEEL,
+            STEEL,
+            incline=angle,
+            height=SPEED**2 / (2 * GRAVITY),
+            gravity=GRAVITY,
         )
         r = di.simulate(sc, di.Hertz(), friction=f)
         return r.extras["cor_tangential"], r.num_steps
@@ -113,7 +125,13 @@ def rigid_row(compliant, repeats, continuum):
     @jax.jit
     def e_t(angle):
         sc = di.scenes.SphereOnIncline(
-            M, R, STEEL, STEEL, angle, SPEED**2 / (2 * GRAVITY), GRAVITY
+            M,
+            R,
+            STEEL,
+            STEEL,
+            incline=angle,
+            height=SPEED**2 / (2 * GRAVITY),
+            gravity=GRAVITY,
         )
         f = di.Friction(MU, compliant=compliant)
         r = di.simulate(sc, di.Hertz(), friction=f)

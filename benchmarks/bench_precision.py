@@ -38,7 +38,7 @@ def impact(v, s_y, method):
     mat = di.Material(210e9, 0.3, s_y, DENSITY)
     m = jnp.asarray(MASS, v.dtype)
     r_ = jnp.asarray(RADIUS, v.dtype)
-    scene = di.scenes.NormalImpact(m, r_, mat, mat, v)
+    scene = di.scenes.NormalImpact(m, r_, mat, mat, velocity=v)
     r = di.simulate(scene, di.JacksonGreen(), method)
     return jnp.stack([r.cor_newton, r.contact_time])
 

@@ -153,7 +153,12 @@ class Case:
 def make_cases() -> list[Case]:
     """The four friction scenes."""
     link = di.scenes.RotatingLink(
-        LINK_MASS, LINK_LENGTH, LINK_DIAMETER, STEEL, STEEL, math.radians(30.0)
+        LINK_MASS,
+        LINK_LENGTH,
+        LINK_DIAMETER,
+        STEEL,
+        STEEL,
+        impact_angle=math.radians(30.0),
     )
     return [
         Case(
@@ -172,7 +177,7 @@ def make_cases() -> list[Case]:
         Case(
             "bar",
             "free bar xi=1/8, 0.3 m, 45 deg, mu 0.2",
-            di.scenes.FreeBar(BAR_MASS, BAR, PLATE, BAR_HEIGHT),
+            di.scenes.FreeBar(BAR_MASS, BAR, PLATE, height=BAR_HEIGHT),
             0.2,
         ),
     ]
@@ -181,7 +186,12 @@ def make_cases() -> list[Case]:
 def sphere_on_incline(angle_deg: float) -> di.scenes.SphereOnIncline:
     """The Alaci et al. ball dropped 0.29 m onto the prism tilted ``angle_deg``."""
     return di.scenes.SphereOnIncline(
-        BALL_MASS, BALL_RADIUS, BALL, PRISM, math.radians(angle_deg), DROP_HEIGHT
+        BALL_MASS,
+        BALL_RADIUS,
+        BALL,
+        PRISM,
+        incline=math.radians(angle_deg),
+        height=DROP_HEIGHT,
     )
 
 
@@ -678,7 +688,7 @@ def bench_normal_paths(config: Config) -> list[list[str]]:
     """(b) Hertz vs Jackson-Green and (c) quadrature vs smooth, on the Alaci et al.
     ball hitting the prism head-on at the drop speed sqrt(2 g h)."""
     scene = di.scenes.NormalImpact(
-        BALL_MASS, BALL_RADIUS, BALL, PRISM, math.sqrt(2 * 9.81 * DROP_HEIGHT)
+        BALL_MASS, BALL_RADIUS, BALL, PRISM, velocity=math.sqrt(2 * 9.81 * DROP_HEIGHT)
     )
     settings = di.SolverSettings()
     laws = {"Hertz": di.Hertz(), "Jackson-Green": LAW}

@@ -83,9 +83,13 @@ def reference(kind, angle, mu_k, mu_s):
 
 def smooth(kind, angle, mu_k, mu_s, width, max_steps):
     if kind == "ball":
-        scene = di.scenes.SphereOnIncline(M, R, BALL, PRISM, math.radians(angle), 0.29)
+        scene = di.scenes.SphereOnIncline(
+            M, R, BALL, PRISM, incline=math.radians(angle), height=0.29
+        )
     else:
-        scene = di.scenes.FreeBar(BAR_MASS, BAR, PLATE, 0.3, angle=math.radians(angle))
+        scene = di.scenes.FreeBar(
+            BAR_MASS, BAR, PLATE, height=0.3, tilt=math.radians(angle)
+        )
     settings = di.SolverSettings(slip_width=width, max_steps=max_steps)
     friction = di.Friction(mu_k, mu_s=mu_s)
     r = di.simulate(scene, LAW, "smooth", friction=friction, settings=settings)

@@ -55,7 +55,7 @@ KEYS = ("normal_velocity_after", "tangential_velocity_after")
 
 
 def ball(angle):
-    return di.scenes.SphereOnIncline(M, R, BALL, PRISM, angle, H)
+    return di.scenes.SphereOnIncline(M, R, BALL, PRISM, incline=angle, height=H)
 
 
 def run(method):

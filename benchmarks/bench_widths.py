@@ -33,7 +33,7 @@ LAW = di.JacksonGreen()
 
 def scene(v, sy):
     steel = di.Material(210e9, 0.3, sy, 7850.0)
-    return di.scenes.NormalImpact(4.11e-3, 5e-3, steel, steel, v)
+    return di.scenes.NormalImpact(4.11e-3, 5e-3, steel, steel, velocity=v)
 
 
 def outputs(v, sy, method, settings):

@@ -102,7 +102,7 @@ def ellipse_experiment():
     inertia = 0.05 * (0.03**2 + 0.015**2) / 4  # a uniform ellipse's, about its centre
     body = di.scenes.PlanarBody(
         0.05, inertia, di.scenes.Ellipse(0.03, 0.015), steel, flat,
-        angle=0.0, velocity_x=0.0, velocity_y=-2.0, com_x=0.005,
+        orientation=0.0, velocity_x=0.0, velocity_y=-2.0, com_x=0.005,
     )  # fmt: skip
     return di.Experiment(body, di.JacksonGreen(), di.Friction(ELLIPSE_TRUTH["mu"]))
 

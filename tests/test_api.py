@@ -76,7 +76,7 @@ def test_float32():
     float32-appropriate tolerances."""
     f32 = jnp.float32
     mat = di.Material(f32(210e9), f32(0.3), f32(300e6), f32(7850))
-    sc = di.scenes.NormalImpact(f32(MASS), f32(RADIUS), mat, mat, f32(1.0))
+    sc = di.scenes.NormalImpact(f32(MASS), f32(RADIUS), mat, mat, velocity=f32(1.0))
     law = jax.tree.map(lambda x: x.astype(f32), di.JacksonGreen())
     st = di.SolverSettings(rtol=1e-5, atol=1e-7, event_tol=1e-5)
     r32 = di.simulate(sc, law, settings=st)

@@ -28,7 +28,7 @@ TIGHT = di.SolverSettings(max_steps=16384, rtol=1e-13, atol=1e-15)
 
 
 def bar(height=0.3, angle=THETA, **kw):
-    return di.scenes.FreeBar(MASS, BAR, PLATE, height, angle=angle, **kw)
+    return di.scenes.FreeBar(MASS, BAR, PLATE, height=height, tilt=angle, **kw)
 
 
 def contact_jacobians(theta):
@@ -56,7 +56,7 @@ def mass_diagonal():
 def rigid_rebound(sc, e):
     """Newton's restitution at the contact point: normal impulse
     ``P = (1 + e) v_n / (J_n M^-1 J_n^T)``, ``q_dot'' = q_dot' - M^-1 J_n^T P``."""
-    j_n, _, _ = contact_jacobians(float(sc.angle))
+    j_n, _, _ = contact_jacobians(float(sc.tilt))
     q_dot0 = np.array([0.0, -math.sqrt(2 * 9.81 * float(sc.height)), 0.0])
     inv_m = 1.0 / mass_diagonal()
     impulse = (1.0 + e) * (j_n @ q_dot0) / np.sum(j_n**2 * inv_m)
@@ -154,7 +154,10 @@ def test_vertical_bar_is_the_normal_impact():
     sc = bar(angle=math.pi / 2)
     r = di.simulate(sc, law)
     n = di.simulate(
-        di.scenes.NormalImpact(MASS, R_B, BAR, PLATE, sc.impact_speed, 9.81), law
+        di.scenes.NormalImpact(
+            MASS, R_B, BAR, PLATE, velocity=sc.impact_speed, gravity=9.81
+        ),
+        law,
     )
     assert rel(r.contact_time, n.contact_time) < 1e-9
     assert rel(r.rebound_velocity, n.rebound_velocity) < 1e-9
@@ -196,8 +199,8 @@ def test_gradients_match_central_differences():
 @pytest.mark.parametrize(
     "make, match",
     [
-        (lambda: bar(angle=0.0), "FreeBar.angle"),
-        (lambda: bar(angle=math.pi / 2 + 1e-3), "FreeBar.angle"),
+        (lambda: bar(angle=0.0), "FreeBar.tilt"),
+        (lambda: bar(angle=math.pi / 2 + 1e-3), "FreeBar.tilt"),
         (lambda: bar(height=0.0), "FreeBar.height"),
         (lambda: bar(height=-0.1), "FreeBar.height"),
         (lambda: bar(length=0.0), "FreeBar.length"),
@@ -205,7 +208,7 @@ def test_gradients_match_central_differences():
         (lambda: bar(diameter=-1.0), "FreeBar.diameter"),
         (lambda: bar(tip_radius=0.0), "FreeBar.tip_radius"),
         (lambda: bar(gravity=0.0), "FreeBar.gravity"),
-        (lambda: di.scenes.FreeBar(0.0, BAR, PLATE, 0.3), "FreeBar.mass"),
+        (lambda: di.scenes.FreeBar(0.0, BAR, PLATE, height=0.3), "FreeBar.mass"),
     ],
 )
 def test_bad_input(make, match):

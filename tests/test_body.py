@@ -27,7 +27,7 @@ def _bar_as_capsule(bar: S.FreeBar) -> S.PlanarBody:
         S.Capsule(half, bar.radius),
         bar.body,
         bar.flat,
-        angle=-bar.angle,
+        orientation=-bar.tilt,
         velocity_x=0.0,
         velocity_y=-bar.impact_speed,
     )
@@ -40,7 +40,7 @@ AGREE = 1e-10
 
 @pytest.mark.parametrize("friction", [None, di.Friction(0.2)], ids=["none", "mu0.2"])
 def test_capsule_is_the_free_bar(friction):
-    bar = S.FreeBar(0.04718, BAR, FLAT, 0.3)
+    bar = S.FreeBar(0.04718, BAR, FLAT, height=0.3)
     a = di.simulate(bar, di.JacksonGreen(), friction=friction)
     b = di.simulate(_bar_as_capsule(bar), di.JacksonGreen(), friction=friction)
     assert float(b.contact_time) == pytest.approx(float(a.contact_time), rel=AGREE)
@@ -66,10 +66,10 @@ def test_disk_on_an_incline_is_the_sphere_on_the_incline(degrees, mu):
     r = 9.5e-3
     m = 4 / 3 * math.pi * r**3 * 7850.0
     phi = math.radians(degrees)
-    sphere = S.SphereOnIncline(m, r, ball, prism, phi, 0.29)
+    sphere = S.SphereOnIncline(m, r, ball, prism, incline=phi, height=0.29)
     v = float(sphere.impact_speed)
     disk = S.PlanarBody(
-        m, 0.4 * m * r**2, S.Disk(r), ball, prism, angle=0.3,
+        m, 0.4 * m * r**2, S.Disk(r), ball, prism, orientation=0.3,
         velocity_x=v * math.sin(phi), velocity_y=-v * math.cos(phi), incline=phi,
     )  # fmt: skip
     a = di.simulate(sphere, di.JacksonGreen(), "smooth", friction=di.Friction(mu))
@@ -86,12 +86,12 @@ def test_ellipse_on_the_end_of_an_axis_does_not_spin():
     a, b, m = 0.04, 0.02, 0.5
     ellipse = S.Ellipse(a, b)
     body = S.PlanarBody(
-        m, m * (a**2 + b**2) / 4, ellipse, BAR, FLAT, angle=math.pi / 2,
+        m, m * (a**2 + b**2) / 4, ellipse, BAR, FLAT, orientation=math.pi / 2,
         velocity_x=0.0, velocity_y=-2.0, gravity=0.0,
     )  # fmt: skip
     r = di.simulate(body, di.Hertz(), friction=di.Friction(0.3))
     assert abs(float(r.extras["angular_velocity_after"])) < 1e-9
-    normal = S.NormalImpact(m, b**2 / a, BAR, FLAT, 2.0)
+    normal = S.NormalImpact(m, b**2 / a, BAR, FLAT, velocity=2.0)
     ref = di.simulate(normal, di.Hertz(), "smooth")
     assert float(r.contact_time) == pytest.approx(float(ref.contact_time), rel=1e-9)
     assert float(r.cor_newton) == pytest.approx(1.0, abs=1e-9)
@@ -107,7 +107,7 @@ def test_energy_never_rises():
     after is at most the energy before (to the solver's tolerance)."""
     rng = np.random.default_rng(3)
     body = S.PlanarBody(
-        0.3, 1e-4, S.Ellipse(0.05, 0.03), BAR, FLAT, angle=0.0,
+        0.3, 1e-4, S.Ellipse(0.05, 0.03), BAR, FLAT, orientation=0.0,
         velocity_x=0.0, velocity_y=-1.0, com_x=0.01, gravity=0.0,
     )  # fmt: skip
     n = 12
@@ -146,7 +146,7 @@ def test_gradient_through_a_planar_body():
 
     def spin(mu):
         body = S.PlanarBody(
-            0.3, 1e-4, S.Ellipse(0.05, 0.03), BAR, FLAT, angle=0.4,
+            0.3, 1e-4, S.Ellipse(0.05, 0.03), BAR, FLAT, orientation=0.4,
             velocity_x=6.0, velocity_y=-2.0, com_x=0.01,
         )  # fmt: skip
         r = di.simulate(body, di.Hertz(), friction=di.Friction(mu))
@@ -183,7 +183,7 @@ def test_input_that_is_not_a_body_is_named(change, message):
 def test_the_same_error_under_jit():
     def spin(vy):
         body = S.PlanarBody(
-            0.3, 1e-4, S.Ellipse(0.05, 0.03), BAR, FLAT, angle=0.4,
+            0.3, 1e-4, S.Ellipse(0.05, 0.03), BAR, FLAT, orientation=0.4,
             velocity_x=1.0, velocity_y=vy,
         )  # fmt: skip
         return di.simulate(body, di.Hertz()).extras["angular_velocity_after"]
@@ -227,13 +227,13 @@ def test_a_stuck_rod_solves(vx, gravity, mu, stick):
     in exactly these cases; without vx and gravity it is the free bar."""
     m, length = 0.05, 0.21
     rod = S.PlanarBody(
-        m, m * length**2 / 12, S.Capsule(0.1, 0.005), BAR, BAR, angle=-0.5,
+        m, m * length**2 / 12, S.Capsule(0.1, 0.005), BAR, BAR, orientation=-0.5,
         velocity_x=vx, velocity_y=-1.0, gravity=gravity,
     )  # fmt: skip
     friction = di.Friction(mu, stick=stick)
     r = di.simulate(rod, di.Hertz(), friction=friction)
     if vx == 0.0 and gravity > 0:
-        bar = S.FreeBar(m, BAR, BAR, 1 / (2 * 9.81), length=length, angle=0.5)
+        bar = S.FreeBar(m, BAR, BAR, height=1 / (2 * 9.81), length=length, tilt=0.5)
         ref = di.simulate(bar, di.Hertz(), friction=friction)
         x = float(ref.extras["tangential_velocity_after"])
         assert float(r.extras["velocity_x_after"]) == pytest.approx(x, rel=AGREE)
@@ -250,15 +250,17 @@ def test_a_triangle_on_its_corner_does_not_spin():
         (rho * math.cos(a), rho * math.sin(a)) for a in np.radians([-90, 30, 150])
     ]
     body = S.PlanarBody(
-        m, 1e-4, S.RoundedPolygon(corners, r), BAR, FLAT, angle=0.0,
+        m, 1e-4, S.RoundedPolygon(corners, r), BAR, FLAT, orientation=0.0,
         velocity_x=0.0, velocity_y=-1.5, gravity=0.0,
     )  # fmt: skip
     out = di.simulate(body, di.Hertz(), friction=di.Friction(0.3))
     assert abs(float(out.extras["angular_velocity_after"])) < 1e-9
-    ref = di.simulate(S.NormalImpact(m, r, BAR, FLAT, 1.5), di.Hertz(), "smooth")
+    ref = di.simulate(
+        S.NormalImpact(m, r, BAR, FLAT, velocity=1.5), di.Hertz(), "smooth"
+    )
     assert float(out.contact_time) == pytest.approx(float(ref.contact_time), rel=1e-9)
     # Turned by 10 deg, the same corner touches off-centre: the body spins.
-    turned = dataclasses.replace(body, angle=math.radians(10.0))
+    turned = dataclasses.replace(body, orientation=math.radians(10.0))
     spin = di.simulate(turned, di.Hertz()).extras["angular_velocity_after"]
     assert abs(float(spin)) > 1.0
 
@@ -281,7 +283,14 @@ def test_a_flat_side_facing_the_flat_is_named(shape):
 
     def body(angle):
         return S.PlanarBody(
-            0.05, 3e-6, shape, BAR, FLAT, angle=angle, velocity_x=0.0, velocity_y=-1.0
+            0.05,
+            3e-6,
+            shape,
+            BAR,
+            FLAT,
+            orientation=angle,
+            velocity_x=0.0,
+            velocity_y=-1.0,
         )
 
     for angle in (0.0, 1e-12, -1e-12):
@@ -315,7 +324,7 @@ def test_a_polygon_that_is_not_convex_is_named():
 
 ELLIPSE = S.PlanarBody(
     0.05, 0.05 * (0.03**2 + 0.015**2) / 4, S.Ellipse(0.03, 0.015), BAR, FLAT,
-    angle=0.3, velocity_x=0.2, velocity_y=-2.0, angular_velocity=3.0,
+    orientation=0.3, velocity_x=0.2, velocity_y=-2.0, angular_velocity=3.0,
     com_x=0.005, incline=0.2,
 )  # fmt: skip
 
@@ -325,11 +334,11 @@ def _earlier(body, t0):
     before: the free flight run backwards by hand, with the height it had."""
     g_t, g_n = (body.gravity * f(body.incline) for f in (jnp.sin, jnp.cos))
     vy0 = body.velocity_y + g_n * t0
-    r, _ = body._lever(body.angle)
+    r, _ = body._lever(body.orientation)
     height = -r[1] - vy0 * t0 + 0.5 * g_n * t0**2
     return dataclasses.replace(
         body,
-        angle=body.angle - body.angular_velocity * t0,
+        orientation=body.orientation - body.angular_velocity * t0,
         velocity_x=body.velocity_x - g_t * t0,
         velocity_y=vy0,
         height=height,
@@ -363,7 +372,7 @@ def test_a_spinning_rod_touches_first_where_the_grid_says():
     point earlier on a 100,000-point grid) and lies on the flat."""
     rod = S.PlanarBody(
         0.1, 0.1 * 0.1**2 / 12, S.Capsule(0.045, 0.005), BAR, FLAT,
-        angle=0.0, velocity_x=0.0, velocity_y=-0.5, angular_velocity=150.0,
+        orientation=0.0, velocity_x=0.0, velocity_y=-0.5, angular_velocity=150.0,
         height=0.06,
     )  # fmt: skip
     t = float(rod.flight_time())
@@ -384,7 +393,7 @@ def test_a_shallow_dip_between_any_samples_is_the_first_touch(depth):
     stepped over the 19 us dip to a touch 7 ms later.)"""
     spin = S.PlanarBody(
         0.05, 1e-5, S.Capsule(0.02, 0.005), BAR, FLAT,
-        angle=0.3, velocity_x=0.0, velocity_y=0.0, angular_velocity=300.0,
+        orientation=0.3, velocity_x=0.0, velocity_y=0.0, angular_velocity=300.0,
         height=1.0,
     )  # fmt: skip
     ts = np.linspace(0.0, 0.2, 400_001)
@@ -445,7 +454,7 @@ def test_a_height_in_a_row_sets_the_flight():
     the body given before the contact."""
     earlier = _earlier(ELLIPSE, 0.01)
     row = {
-        "orientation": float(earlier.angle),
+        "orientation": float(earlier.orientation),
         "velocity_x": float(earlier.velocity_x),
         "velocity_y": float(earlier.velocity_y),
         "angular_velocity_before": float(earlier.angular_velocity),
@@ -464,7 +473,7 @@ def test_a_height_in_a_row_sets_the_flight():
 def test_touching_and_leaving_is_not_an_impact():
     """At exactly its touching height, moving away: refused, not an impact at
     t = 0 (a frame at contact must show the contact point approaching)."""
-    r, _ = ELLIPSE._lever(ELLIPSE.angle)
+    r, _ = ELLIPSE._lever(ELLIPSE.orientation)
     with pytest.raises(ValueError, match="touches the flat"):
         dataclasses.replace(
             ELLIPSE, height=float(-r[1]), velocity_y=1.0, angular_velocity=0.0

@@ -16,7 +16,7 @@ M, A, B = 0.05, 0.03, 0.015
 # An ellipse with its mass off the centre, dropped at 1.5-3 m/s with random
 # orientation, sideways speed and spin.
 BODY = S.PlanarBody(
-    M, M * (A**2 + B**2) / 4, S.Ellipse(A, B), BALL, FLAT, angle=0.0,
+    M, M * (A**2 + B**2) / 4, S.Ellipse(A, B), BALL, FLAT, orientation=0.0,
     velocity_x=0.0, velocity_y=-2.0, com_x=0.005,
 )  # fmt: skip
 STATE = ("orientation_deg", "velocity_x_m_s", "velocity_y_m_s")

@@ -74,8 +74,8 @@ def test_calibration_independent_of_scene():
     with the same COR."""
     law = di.HuntCrossley(cor=0.5, calibrated=True)
     mat = steel(jnp.inf)
-    small = di.scenes.NormalImpact(1e-6, 1e-4, mat, mat, 1e-3)
-    big = di.scenes.NormalImpact(10.0, 0.1, mat, mat, 10.0)
+    small = di.scenes.NormalImpact(1e-6, 1e-4, mat, mat, velocity=1e-3)
+    big = di.scenes.NormalImpact(10.0, 0.1, mat, mat, velocity=10.0)
     for sc in (small, big):
         assert abs(float(di.simulate(sc, law).cor_newton) - 0.5) < 1e-7
 

@@ -20,7 +20,9 @@ G = 9.81
 
 
 def ball(angle_deg):
-    return di.scenes.SphereOnIncline(M, R, BALL, PRISM, math.radians(angle_deg), H)
+    return di.scenes.SphereOnIncline(
+        M, R, BALL, PRISM, incline=math.radians(angle_deg), height=H
+    )
 
 
 def hard_cap_reference(angle_deg, mu, steps=100_000):

@@ -73,7 +73,7 @@ def test_declarations_are_read_in_their_units(tmp_path):
     assert d.flat_material["yield_strength"] == pytest.approx(400e6, rel=1e-15)
     assert d.lines == {"body": 1, "shape": 2, "body_material": 3, "flat_material": 4}
     scene = di.Experiment.from_file(data).scene
-    assert float(scene.angle) == pytest.approx(np.radians(20.0))  # the first row
+    assert float(scene.orientation) == pytest.approx(np.radians(20.0))  # the first row
     assert float(scene.body.yield_strength) == np.inf  # not declared: never yields
     # a file that declares nothing has no declarations (free-text provenance)
     plain = tmp_path / "p.csv"

@@ -48,7 +48,7 @@ class BoundHertzDashpot(di.AbstractBoundLaw):
 
 
 def _impact(damping, velocity=1.0, settings=di.SolverSettings()):
-    scene = di.scenes.NormalImpact(4.11e-3, 5e-3, BALL, PLATE, velocity)
+    scene = di.scenes.NormalImpact(4.11e-3, 5e-3, BALL, PLATE, velocity=velocity)
     return di.simulate(scene, HertzDashpot(damping), settings=settings)
 
 
@@ -78,7 +78,7 @@ def test_user_law_simulates_differentiates_and_fits(tmp_path):
 
 
 def _impact_scene_experiment():
-    scene = di.scenes.NormalImpact(4.11e-3, 5e-3, BALL, PLATE, 1.0)
+    scene = di.scenes.NormalImpact(4.11e-3, 5e-3, BALL, PLATE, velocity=1.0)
     return di.Experiment(scene, HertzDashpot(1.0))
 
 

@@ -28,7 +28,7 @@ ROOTS = (4.73004074, 7.85320462, 10.9956078, 14.1371655)
 
 
 def flexible(na=2, nb=2, **kw):
-    return scenes.FlexibleBar(MASS, BAR, PLATE, HEIGHT, axial_modes=na,
+    return scenes.FlexibleBar(MASS, BAR, PLATE, height=HEIGHT, axial_modes=na,
                               bending_modes=nb, **kw)  # fmt: skip
 
 
@@ -80,7 +80,7 @@ def test_no_modes_is_the_rigid_bar(friction):
     """With no mode the flexible bar is `FreeBar`, to rounding: the same
     vector field (no elastic force) on the same coordinates."""
     law = di.JacksonGreen()
-    rigid = di.simulate(scenes.FreeBar(MASS, BAR, PLATE, HEIGHT), law, "smooth",
+    rigid = di.simulate(scenes.FreeBar(MASS, BAR, PLATE, height=HEIGHT), law, "smooth",
                         friction=friction)  # fmt: skip
     flex = di.simulate(flexible(0, 0), law, "smooth", friction=friction)
     for key in ("angular_velocity_after", "normal_velocity_contact_after",
@@ -108,7 +108,7 @@ def test_vibration_takes_the_lost_energy():
     1e-6 m/s^2 from the height that gives the usual impact speed: its work
     during the contact is ~1e-17 of the energy."""
     speed = math.sqrt(2 * 9.81 * HEIGHT)
-    bar = scenes.FlexibleBar(MASS, BAR, PLATE, speed**2 / 2e-6, gravity=1e-6)
+    bar = scenes.FlexibleBar(MASS, BAR, PLATE, height=speed**2 / 2e-6, gravity=1e-6)
     r = di.simulate(bar, di.Hertz(), "smooth")
     ke0 = 0.5 * MASS * float(bar.impact_speed) ** 2
     lost = ke0 - float(kinetic(bar, r.extras))
@@ -159,7 +159,7 @@ def test_the_stiff_limit_is_the_rigid_bar():
     settings = di.SolverSettings(max_steps=200_000)
     keys = ("normal_velocity_contact_after", "tangential_velocity_contact_after",
             "angular_velocity_after")  # fmt: skip
-    rigid = di.simulate(scenes.FreeBar(MASS, BAR, PLATE, HEIGHT), law, "smooth",
+    rigid = di.simulate(scenes.FreeBar(MASS, BAR, PLATE, height=HEIGHT), law, "smooth",
                         friction=friction)  # fmt: skip
     ref = np.array([float(rigid.extras[k]) for k in keys])
     off = {}
@@ -208,7 +208,7 @@ GRID = np.radians(np.arange(1.0, 90.0, 4.0))
 
 
 def rigid_at(angle):
-    return scenes.FreeBar(MASS, BAR, PLATE, HEIGHT, angle=angle)
+    return scenes.FreeBar(MASS, BAR, PLATE, height=HEIGHT, tilt=angle)
 
 
 def flexible_at(angle):
@@ -279,9 +279,9 @@ def test_the_four_composite_bars_rigid_and_flexible():
     angles = jnp.radians(jnp.linspace(2.0, 86.0, 12))
     for mass, e, s_y in COMPOSITES.values():
         body = di.Material(e, 0.3, s_y)
-        rigid = di.simulate(scenes.FreeBar(mass, body, PLATE, HEIGHT), law,
+        rigid = di.simulate(scenes.FreeBar(mass, body, PLATE, height=HEIGHT), law,
                             "smooth", friction=friction)  # fmt: skip
-        bar = scenes.FlexibleBar(mass, body, PLATE, HEIGHT, axial_modes=2,
+        bar = scenes.FlexibleBar(mass, body, PLATE, height=HEIGHT, axial_modes=2,
                                  bending_modes=2)  # fmt: skip
         flex = di.simulate(bar, law, "smooth", friction=friction)
         brought = 0.5 * mass * float(bar.impact_speed) ** 2
@@ -297,7 +297,7 @@ def test_the_four_composite_bars_rigid_and_flexible():
     body = di.Material(e, 0.3, s_y)
 
     def ratio(angle):
-        scene = scenes.FlexibleBar(mass, body, PLATE, HEIGHT, angle=angle,
+        scene = scenes.FlexibleBar(mass, body, PLATE, height=HEIGHT, tilt=angle,
                                    axial_modes=2, bending_modes=2)  # fmt: skip
         return di.held_impulse_ratio(scene, law)
 
@@ -314,7 +314,7 @@ def test_rigid_laws_refuse_a_vibrating_bar():
     number of modes), and the rigid bar it contains is accepted."""
     with pytest.raises(TypeError, match="rigid impact laws treat the body as rigid"):
         di.rigid_impact(flexible(1, 1), 0.3, 0.7)
-    rigid = di.rigid_impact(scenes.FreeBar(MASS, BAR, PLATE, HEIGHT), 0.3, 0.7)
+    rigid = di.rigid_impact(scenes.FreeBar(MASS, BAR, PLATE, height=HEIGHT), 0.3, 0.7)
     no_modes = di.rigid_impact(flexible(0, 0), 0.3, 0.7)
     assert float(no_modes["angular_velocity_after"]) == pytest.approx(
         float(rigid["angular_velocity_after"]), rel=1e-14

@@ -43,7 +43,7 @@ def _params(velocity, yield_strength):
 def _outputs(p, law, method):
     ball = di.Material(210e9, 0.3, 5e9)
     plate = di.Material(p["E"], p["nu"], p["S_y"])
-    sc = di.scenes.NormalImpact(p["m"], p["R"], ball, plate, p["v"])
+    sc = di.scenes.NormalImpact(p["m"], p["R"], ball, plate, velocity=p["v"])
     r = di.simulate(sc, law, method)
     return jnp.stack([getattr(r, o) for o in OUTPUTS])
 

@@ -35,13 +35,13 @@ def test_closed_forms_over_speeds(method):
     speeds = jnp.array([1e-3, 0.01, 0.3, 1.0, 10.0])
 
     def run(v):
-        sc = di.scenes.NormalImpact(MASS, RADIUS, mat, mat, v)
+        sc = di.scenes.NormalImpact(MASS, RADIUS, mat, mat, velocity=v)
         return di.simulate(sc, di.Hertz(), method)
 
     r = jax.vmap(run)(speeds)
     for i, v in enumerate(speeds):
         d_max, t_c, k, c = closed_form(
-            di.scenes.NormalImpact(MASS, RADIUS, mat, mat, v)
+            di.scenes.NormalImpact(MASS, RADIUS, mat, mat, velocity=v)
         )
         assert rel(r.max_deflection[i], d_max) < 1e-7
         assert rel(r.contact_time[i], t_c) < 1e-7
@@ -64,7 +64,7 @@ def test_closed_forms_over_speeds(method):
 def test_general_exponent_closed_form():
     """F = K d^n: d_max = ((n+1) m v0^2 / (2K))^(1/(n+1)), elastic (e = 1)."""
     mat = steel(jnp.inf)
-    sc = di.scenes.NormalImpact(MASS, RADIUS, mat, mat, 2.0)
+    sc = di.scenes.NormalImpact(MASS, RADIUS, mat, mat, velocity=2.0)
     law = di.Hertz(exponent=2.0, stiffness=1e12)
     d_max = (3.0 * MASS * 4.0 / (2.0 * 1e12)) ** (1.0 / 3.0)
     for method in ("smooth", "quadrature"):
@@ -77,7 +77,7 @@ def test_gravity_all_methods_agree():
     """A slow drop (1 mm/s) where gravity is ~40 % of the peak contact force: the
     impact is longer than without gravity, still elastic, and all methods agree."""
     mat = steel(jnp.inf)
-    sc = di.scenes.NormalImpact(MASS, RADIUS, mat, mat, 1e-3, gravity=9.81)
+    sc = di.scenes.NormalImpact(MASS, RADIUS, mat, mat, velocity=1e-3, gravity=9.81)
     r_q = di.simulate(sc, di.Hertz(), "quadrature")
     r_0 = di.simulate(eqx_replace_gravity(sc, 0.0), di.Hertz(), "quadrature")
     assert float(r_q.contact_time) > float(r_0.contact_time) * 1.05
@@ -89,4 +89,6 @@ def test_gravity_all_methods_agree():
 
 
 def eqx_replace_gravity(sc, g):
-    return di.scenes.NormalImpact(sc.mass, sc.radius, sc.body, sc.flat, sc.velocity, g)
+    return di.scenes.NormalImpact(
+        sc.mass, sc.radius, sc.body, sc.flat, velocity=sc.velocity, gravity=g
+    )

@@ -25,7 +25,9 @@ FRICTION_SETTINGS = di.SolverSettings(max_steps=16384)
 
 
 def scene(phi_deg, height=0.29):
-    return di.scenes.SphereOnIncline(M, R, BALL, PRISM, math.radians(phi_deg), height)
+    return di.scenes.SphereOnIncline(
+        M, R, BALL, PRISM, incline=math.radians(phi_deg), height=height
+    )
 
 
 def routh(phi, mu, v):
@@ -76,10 +78,10 @@ def test_frictionless_is_the_normal_impact(monkeypatch):
     sc = scene(30.0)
     phi = math.radians(30.0)
     oblique = eqx.filter_jit(lambda s: di.simulate(s, law, "smooth"))(sc)
-    cos = jnp.cos(sc.angle)  # the same arithmetic as the scene: bit-identical
+    cos = jnp.cos(sc.incline)  # the same arithmetic as the scene: bit-identical
     normal = eqx.filter_jit(lambda s: di.simulate(s, law, "smooth"))(
         di.scenes.NormalImpact(
-            M, R, BALL, PRISM, sc.impact_speed * cos, sc.gravity * cos
+            M, R, BALL, PRISM, velocity=sc.impact_speed * cos, gravity=sc.gravity * cos
         )
     )
     for f in ("contact_time", "cor_newton", "max_deflection", "permanent_deformation"):
@@ -194,7 +196,9 @@ def test_forward_and_reverse_mode_agree_on_the_tracked_extrema():
     prism = di.Material(205e9, 0.29, 400e6)
 
     def f(mu, adjoint):
-        sc = di.scenes.SphereOnIncline(0.0281, 9.5e-3, ball, prism, 0.6, 0.29)
+        sc = di.scenes.SphereOnIncline(
+            0.0281, 9.5e-3, ball, prism, incline=0.6, height=0.29
+        )
         r = di.simulate(
             sc,
             di.HuntCrossley(0.7),

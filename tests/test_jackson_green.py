@@ -160,7 +160,7 @@ def test_yield_onset_critical_variant():
 def test_never_yields():
     """S_y = inf reduces JG to Hertz (finite everywhere, e = 1)."""
     mat = steel(jnp.inf)
-    sc = di.scenes.NormalImpact(MASS, RADIUS, mat, mat, 5.0)
+    sc = di.scenes.NormalImpact(MASS, RADIUS, mat, mat, velocity=5.0)
     r = di.simulate(sc, di.JacksonGreen(), "smooth")
     h = di.simulate(sc, di.Hertz(), "quadrature")
     assert rel(r.contact_time, h.contact_time) < 1e-7

@@ -20,12 +20,14 @@ MASS, RADIUS = 4.11e-3, 5e-3
 
 
 def cor(v, s_y, method="quadrature", settings=di.SolverSettings()):
-    scene = di.scenes.NormalImpact(MASS, RADIUS, BALL, di.Material(205e9, 0.29, s_y), v)
+    scene = di.scenes.NormalImpact(
+        MASS, RADIUS, BALL, di.Material(205e9, 0.29, s_y), velocity=v
+    )
     return di.simulate(scene, di.JacksonGreen(), method, settings=settings).cor_newton
 
 
 def test_jit_matches_eager_and_returns_a_pytree():
-    scene = di.scenes.NormalImpact(MASS, RADIUS, BALL, PLATE, 1.0)
+    scene = di.scenes.NormalImpact(MASS, RADIUS, BALL, PLATE, velocity=1.0)
     eager = di.simulate(scene, di.JacksonGreen(), "quadrature")
     jitted = jax.jit(lambda s: di.simulate(s, di.JacksonGreen(), "quadrature"))(scene)
     assert isinstance(jitted, di.ImpactResult)

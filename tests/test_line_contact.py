@@ -20,7 +20,7 @@ MASS, RADIUS = 0.05, 0.01
 
 def scene(v, gravity=9.81, radius=RADIUS):
     mat = steel(jnp.inf)
-    return di.scenes.NormalImpact(MASS, radius, mat, mat, v, gravity=gravity)
+    return di.scenes.NormalImpact(MASS, radius, mat, mat, velocity=v, gravity=gravity)
 
 
 def references(sc):
@@ -137,7 +137,7 @@ def test_planar_body_takes_the_line_contact():
     mat = di.Material(200e9, 0.3, np.inf, 7850.0)
     body = di.scenes.PlanarBody(
         0.05, 0.05 * (0.03**2 + 0.015**2) / 4, di.scenes.Ellipse(0.03, 0.015),
-        mat, mat, angle=0.3, velocity_x=0.2, velocity_y=-2.0,
+        mat, mat, orientation=0.3, velocity_x=0.2, velocity_y=-2.0,
     )  # fmt: skip
     elastic = di.simulate(body, di.LineContact(LENGTH))
     assert elastic.result == di.RESULTS.successful
@@ -154,13 +154,13 @@ def test_a_light_slow_impact_under_gravity_has_its_true_depth():
     from the right (the start is doubled until it is), not the spurious
     negative one; the line law with compliant friction is refused."""
     mat = steel(jnp.inf)
-    sc = di.scenes.NormalImpact(1e-3, RADIUS, mat, mat, 1e-6)
+    sc = di.scenes.NormalImpact(1e-3, RADIUS, mat, mat, velocity=1e-6)
     r = di.simulate(sc, di.LineContact(LENGTH), "smooth")
     assert r.result == di.RESULTS.successful
     assert float(r.max_deflection) > 0
     body = di.scenes.PlanarBody(
         0.05, 0.05 * (0.03**2 + 0.015**2) / 4, di.scenes.Ellipse(0.03, 0.015),
-        mat, mat, angle=0.3, velocity_x=0.2, velocity_y=-2.0,
+        mat, mat, orientation=0.3, velocity_x=0.2, velocity_y=-2.0,
     )  # fmt: skip
     with pytest.raises(ValueError, match="line contact"):
         di.simulate(

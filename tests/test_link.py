@@ -34,7 +34,14 @@ def link(length=0.2, impact_angle=ALPHA, release_angle=0.0, **kw):
     """A solid steel rod of diameter D (its mass follows its length)."""
     mass = DENSITY * jnp.pi * (0.5 * D) ** 2 * length
     return di.scenes.RotatingLink(
-        mass, length, D, STEEL, STEEL, impact_angle, release_angle, **kw
+        mass,
+        length,
+        D,
+        STEEL,
+        STEEL,
+        impact_angle=impact_angle,
+        release_angle=release_angle,
+        **kw,
     )
 
 
@@ -260,18 +267,24 @@ def test_gradients_match_central_differences():
         (lambda: link(release_angle=ALPHA + 0.1), "RotatingLink.release_angle"),
         (lambda: link(release_angle=-2.0), "RotatingLink.release_angle"),
         (
-            lambda: di.scenes.RotatingLink(0.1, 0.0, D, STEEL, STEEL, ALPHA),
+            lambda: di.scenes.RotatingLink(
+                0.1, 0.0, D, STEEL, STEEL, impact_angle=ALPHA
+            ),
             "RotatingLink.length",
         ),
         (lambda: link(length=0.004), "RotatingLink.length"),
         (lambda: link(tip_radius=-1e-3), "RotatingLink.tip_radius"),
         (lambda: link(gravity=0.0), "RotatingLink.gravity"),
         (
-            lambda: di.scenes.RotatingLink(-1.0, 0.2, D, STEEL, STEEL, ALPHA),
+            lambda: di.scenes.RotatingLink(
+                -1.0, 0.2, D, STEEL, STEEL, impact_angle=ALPHA
+            ),
             "RotatingLink.mass",
         ),
         (
-            lambda: di.scenes.RotatingLink(0.1, 0.2, 0.0, STEEL, STEEL, ALPHA),
+            lambda: di.scenes.RotatingLink(
+                0.1, 0.2, 0.0, STEEL, STEEL, impact_angle=ALPHA
+            ),
             "RotatingLink.diameter",
         ),
     ],

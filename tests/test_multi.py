@@ -30,7 +30,7 @@ CRANK_SETTINGS = SpanSettings(max_steps=32768, max_impacts=256)
 
 
 def bar(height=HEIGHT):
-    return BouncingBar(MASS, BAR, PLATE, height)
+    return BouncingBar(MASS, BAR, PLATE, height=height)
 
 
 @pytest.fixture(scope="module")
@@ -606,7 +606,7 @@ def _jg_bar(p, settings):
         MASS,
         di.Material(BAR.youngs_modulus, BAR.poisson_ratio, yield_strength),
         PLATE,
-        height,
+        height=height,
     )
     r = simulate_span(scene, di.JacksonGreen(), (0.0, 0.335), settings=settings)
     im = r.impacts
@@ -802,11 +802,14 @@ def test_rejects_approach_speed_laws_and_wrong_scenes():
         (lambda: SliderCrank(crank_angle=float("inf")), "SliderCrank.crank_angle"),
         (lambda: SliderCrank(rod_inertia=-1.0), "SliderCrank.rod_inertia"),
         (lambda: SliderCrank(gravity=-9.81), "SliderCrank.gravity"),
-        (lambda: BouncingBar(MASS, BAR, PLATE, HEIGHT, angle=-0.1), "angle"),
-        (lambda: BouncingBar(-MASS, BAR, PLATE, HEIGHT), "BouncingBar.mass"),
-        (lambda: BouncingBar(MASS, BAR, PLATE, float("nan")), "BouncingBar.height"),
-        (lambda: BouncingBar(MASS, BAR, PLATE, 0.0), "BouncingBar.height"),
-        (lambda: BouncingBar(MASS, BAR, PLATE, HEIGHT, length=0.005), "length"),
+        (lambda: BouncingBar(MASS, BAR, PLATE, height=HEIGHT, tilt=-0.1), "angle"),
+        (lambda: BouncingBar(-MASS, BAR, PLATE, height=HEIGHT), "BouncingBar.mass"),
+        (
+            lambda: BouncingBar(MASS, BAR, PLATE, height=float("nan")),
+            "BouncingBar.height",
+        ),
+        (lambda: BouncingBar(MASS, BAR, PLATE, height=0.0), "BouncingBar.height"),
+        (lambda: BouncingBar(MASS, BAR, PLATE, height=HEIGHT, length=0.005), "length"),
         (lambda: SpanSettings(rtol=0.0), "SpanSettings.rtol"),
         (lambda: SpanSettings(atol=float("nan")), "SpanSettings.atol"),
         (lambda: SpanSettings(max_steps=0), "SpanSettings.max_steps"),

@@ -118,7 +118,13 @@ def mbf_continuum(psi1, chi, n=1000, steps=100_000):
 
 def ball(angle_deg, plate=PLATE, gravity=9.81, height=H, body=BALL):
     return di.scenes.SphereOnIncline(
-        M, R, body, plate, math.radians(angle_deg), height, gravity
+        M,
+        R,
+        body,
+        plate,
+        incline=math.radians(angle_deg),
+        height=height,
+        gravity=gravity,
     )
 
 
@@ -269,7 +275,7 @@ def test_jit_vmap_and_bad_options():
     friction = di.Friction(0.3, compliant=MD)
 
     def e_t(angle):
-        sc = di.scenes.SphereOnIncline(M, R, BALL, PLATE, angle, H)
+        sc = di.scenes.SphereOnIncline(M, R, BALL, PLATE, incline=angle, height=H)
         return di.simulate(sc, di.Hertz(), friction=friction).extras["cor_tangential"]
 
     batch = jax.jit(jax.vmap(e_t))(angles)

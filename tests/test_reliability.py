@@ -40,7 +40,9 @@ def _defaults(**scene):
 
 def normal_impact(p):
     body, flat = _materials(p)
-    scene = di.scenes.NormalImpact(p["mass"], p["radius"], body, flat, p["velocity"])
+    scene = di.scenes.NormalImpact(
+        p["mass"], p["radius"], body, flat, velocity=p["velocity"]
+    )
     return scene, di.Hertz(), None
 
 
@@ -54,20 +56,22 @@ def collinear(p):
 
 def jackson_green(p):
     body, flat = _materials(p)
-    scene = di.scenes.NormalImpact(M, R, body, flat, 1.0)
+    scene = di.scenes.NormalImpact(M, R, body, flat, velocity=1.0)
     return scene, di.JacksonGreen(ep_exponent=p["ep_exponent"], dr_a=p["dr_a"]), None
 
 
 def hunt_crossley(p):
     body, flat = _materials(p)
-    scene = di.scenes.NormalImpact(M, R, body, flat, 1.0)
+    scene = di.scenes.NormalImpact(M, R, body, flat, velocity=1.0)
     law = di.HuntCrossley(cor=p["cor"], exponent=p["exponent"])
     return scene, law, None
 
 
 def sphere_on_incline(p):
     body, flat = _materials(p)
-    scene = di.scenes.SphereOnIncline(M, R, body, flat, p["angle"], p["height"])
+    scene = di.scenes.SphereOnIncline(
+        M, R, body, flat, incline=p["angle"], height=p["height"]
+    )
     return scene, di.Hertz(), di.Friction(p["mu"], p["mu_v"])
 
 
@@ -75,7 +79,7 @@ def planar_body(p):
     body, flat = _materials(p)
     scene = di.scenes.PlanarBody(
         p["mass"], p["inertia"], di.scenes.Disk(p["radius"]), body, flat,
-        angle=p["angle"], velocity_x=0.1, velocity_y=p["velocity_y"],
+        orientation=p["angle"], velocity_x=0.1, velocity_y=p["velocity_y"],
     )  # fmt: skip
     return scene, di.Hertz(), di.Friction(0.2)
 
@@ -134,8 +138,8 @@ CASES = {
         _defaults(angle=0.5, height=0.29, mu=0.2, mu_v=0.0),
         "smooth",
         [
-            ("angle", 1.6, "SphereOnIncline.angle"),
-            ("angle", 30.0, "SphereOnIncline.angle"),
+            ("angle", 1.6, "SphereOnIncline.incline"),
+            ("angle", 30.0, "SphereOnIncline.incline"),
             ("height", -0.1, "SphereOnIncline.height"),
             ("mu", -0.1, "Friction.mu"),
             ("mu", math.nan, "Friction.mu"),
@@ -153,7 +157,7 @@ CASES = {
         [
             ("mass", -M, "PlanarBody.mass"),
             ("radius", -R, "Disk.radius"),
-            ("angle", math.nan, "PlanarBody.angle"),
+            ("angle", math.nan, "PlanarBody.orientation"),
             ("inertia", M, "PlanarBody.inertia"),
             ("velocity_y", 1.0, "PlanarBody.velocity_y` and `angular_velocity"),
             ("velocity_y", math.nan, "`PlanarBody.velocity_y` must be finite"),
@@ -232,7 +236,7 @@ def test_issue_examples_under_jit():
     def cor(nu, e, angle, mu):
         ball = di.Material(208e9, 0.3)
         plate = di.Material(e, nu, 355e6)
-        scene = di.scenes.SphereOnIncline(M, R, ball, plate, angle, 0.29)
+        scene = di.scenes.SphereOnIncline(M, R, ball, plate, incline=angle, height=0.29)
         r = di.simulate(scene, di.JacksonGreen(), friction=di.Friction(mu))
         return r.cor_newton, r.extras["cor_tangential"]
 
@@ -241,7 +245,7 @@ def test_issue_examples_under_jit():
     for args, message in [
         ((0.9, 205e9, 0.5, 0.2), "poisson_ratio"),
         ((0.29, -205e9, 0.5, 0.2), "youngs_modulus"),
-        ((0.29, 205e9, 1.6, 0.2), "SphereOnIncline.angle"),
+        ((0.29, 205e9, 1.6, 0.2), "SphereOnIncline.incline"),
         ((0.29, 205e9, 0.5, -0.1), "Friction.mu"),
         ((0.29, 205e9, 0.5, math.nan), "Friction.mu"),
     ]:
@@ -254,7 +258,7 @@ def test_equinox_runtime_error_under_filter_jit():
         lambda nu: (
             di.simulate(
                 di.scenes.NormalImpact(
-                    M, R, di.Material(2e11, nu), di.Material(2e11, 0.3), 1
+                    M, R, di.Material(2e11, nu), di.Material(2e11, 0.3), velocity=1
                 ),
                 di.Hertz(),
                 "quadrature",
@@ -270,7 +274,7 @@ def test_tree_at_cannot_skip_the_checks():
     """``eqx.tree_at`` builds a module without its __init__: the solve entry
     checks it anyway (eagerly: ValueError before any solve)."""
     scene = di.scenes.NormalImpact(
-        M, R, di.Material(2e11, 0.3), di.Material(2e11, 0.3), 1
+        M, R, di.Material(2e11, 0.3), di.Material(2e11, 0.3), velocity=1
     )
     bad = eqx.tree_at(lambda s: s.flat.poisson_ratio, scene, jnp.asarray(0.7))
     with pytest.raises(ValueError, match="poisson_ratio"):
@@ -279,7 +283,7 @@ def test_tree_at_cannot_skip_the_checks():
 
 def _soft_sphere(v):
     soft = di.Material(1e6, 0.3)
-    return di.scenes.NormalImpact(M, R, soft, soft, v)
+    return di.scenes.NormalImpact(M, R, soft, soft, velocity=v)
 
 
 @pytest.mark.parametrize("law", [di.Hertz, di.JacksonGreen], ids=["hertz", "jg"])
@@ -337,7 +341,7 @@ def test_step_budget_is_a_code_and_a_class():
 def test_never_separates_quadrature():
     """Gravity larger than the stored energy can lift: a code, not a NaN."""
     mat = di.Material(2e11, 0.3, 300e6)
-    scene = di.scenes.NormalImpact(M, R, mat, mat, 1.0, gravity=1e5)
+    scene = di.scenes.NormalImpact(M, R, mat, mat, velocity=1.0, gravity=1e5)
     with pytest.raises(di.NeverSeparatesError):
         di.simulate(scene, di.JacksonGreen(), "quadrature")
     r = di.simulate(scene, di.JacksonGreen(), "quadrature", throw=False)
@@ -387,7 +391,7 @@ def test_settings_types():
 
 def _span(height, mu=0.2, max_steps=16384):
     bar = di.scenes.BouncingBar(
-        0.04718, di.Material(200e9, 0.3, 230e6), di.Material(205e9, 0.29), height
+        0.04718, di.Material(200e9, 0.3, 230e6), di.Material(205e9, 0.29), height=height
     )
     return di.simulate_span(
         bar,
@@ -417,7 +421,7 @@ def test_span_checks_and_codes():
         _span(0.05, max_steps=8)
     r = di.simulate_span(
         di.scenes.BouncingBar(
-            0.04718, di.Material(200e9, 0.3), di.Material(205e9, 0.29), 0.05
+            0.04718, di.Material(200e9, 0.3), di.Material(205e9, 0.29), height=0.05
         ),
         di.Hertz(),
         (0.0, 0.2),
@@ -444,31 +448,37 @@ CONSTRUCTORS = [
     (lambda x: di.JacksonGreen(c_a=x), 1.295, math.inf, "JacksonGreen.c_a"),
     (lambda x: di.Friction(0.2, mu_s=x), 0.3, 0.1, "Friction.mu_s"),
     (
-        lambda x: di.scenes.RotatingLink(0.1, 0.2, 0.01, _steel(), _steel(), x),
+        lambda x: di.scenes.RotatingLink(
+            0.1, 0.2, 0.01, _steel(), _steel(), impact_angle=x
+        ),
         0.5,
         1.7,
         "RotatingLink.impact_angle",
     ),
     (
-        lambda x: di.scenes.RotatingLink(0.1, 0.2, 0.01, _steel(), _steel(), 0.5, x),
+        lambda x: di.scenes.RotatingLink(
+            0.1, 0.2, 0.01, _steel(), _steel(), impact_angle=0.5, release_angle=x
+        ),
         0.0,
         0.6,
         "release_angle",
     ),
     (
-        lambda x: di.scenes.FreeBar(0.05, _steel(), _steel(), x),
+        lambda x: di.scenes.FreeBar(0.05, _steel(), _steel(), height=x),
         0.3,
         0.0,
         "FreeBar.height",
     ),
     (
-        lambda x: di.scenes.FreeBar(0.05, _steel(), _steel(), 0.3, angle=x),
+        lambda x: di.scenes.FreeBar(0.05, _steel(), _steel(), height=0.3, tilt=x),
         0.7,
         -0.1,
-        "FreeBar.angle",
+        "FreeBar.tilt",
     ),
     (
-        lambda x: di.scenes.BouncingBar(0.05, _steel(), _steel(), 0.3, diameter=x),
+        lambda x: di.scenes.BouncingBar(
+            0.05, _steel(), _steel(), height=0.3, diameter=x
+        ),
         0.01,
         0.1,
         "BouncingBar.length",
@@ -514,14 +524,16 @@ def test_options_that_would_be_ignored_are_refused():
         di.simulate(head_on, di.Hertz(), friction=di.Friction(0.2))
     with pytest.raises(TypeError, match="friction"):
         di.simulate(head_on, di.Hertz(), friction=0.2)
-    incline = di.scenes.SphereOnIncline(M, R, _steel(), _steel(), 0.5, 0.1)
+    incline = di.scenes.SphereOnIncline(
+        M, R, _steel(), _steel(), incline=0.5, height=0.1
+    )
     with pytest.raises(ValueError, match="n_history"):
         di.simulate(incline, di.Hertz(), friction=di.Friction(0.2), n_history=10)
 
 
 def test_shapes_and_types_are_named():
     batched = di.Material(np.array([2e11, 1e11]), 0.3)
-    scene = di.scenes.NormalImpact(M, R, batched, _steel(), 1.0)
+    scene = di.scenes.NormalImpact(M, R, batched, _steel(), velocity=1.0)
     with pytest.raises(ValueError, match=r"`scene\.body\.youngs_modulus` has shape"):
         di.simulate(scene, di.Hertz(), "quadrature")
     for bad in (None, "abc", 2e11 + 1j):
@@ -532,11 +544,13 @@ def test_shapes_and_types_are_named():
     plate = _steel()
     for make, field in (
         (
-            lambda: di.scenes.NormalImpact(M, R, "steel", plate, 1.0),
+            lambda: di.scenes.NormalImpact(M, R, "steel", plate, velocity=1.0),
             "NormalImpact.body",
         ),
         (
-            lambda: di.scenes.SphereOnIncline(M, R, plate, None, 0.5, 0.3),
+            lambda: di.scenes.SphereOnIncline(
+                M, R, plate, None, incline=0.5, height=0.3
+            ),
             "SphereOnIncline.flat",
         ),
         (
@@ -557,7 +571,7 @@ def test_failure_known_at_compile_time_still_raises_under_jit(method):
     constant.  The check must survive that (it once did not: the program
     returned NaN without a word)."""
     soft = di.Material(1e6, 0.3)
-    scene = di.scenes.NormalImpact(4.11e-3, 5e-3, soft, soft, 10.0)  # too deep
+    scene = di.scenes.NormalImpact(4.11e-3, 5e-3, soft, soft, velocity=10.0)  # too deep
     program = jax.jit(lambda: di.simulate(scene, di.Hertz(), method).max_deflection)
     with pytest.raises(Exception, match="outside the contact model"):
         jax.block_until_ready(program())

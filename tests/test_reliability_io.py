@@ -37,7 +37,7 @@ def test_predict_takes_units_and_refuses_unknown_names():
         di.predict(e, {"contact_time_s": 1e-5})
     # Degrees given as radians: outside [0, pi/2), refused, not solved.
     for angle in (30.0, 1.6):
-        with pytest.raises(ValueError, match="SphereOnIncline.angle"):
+        with pytest.raises(ValueError, match="SphereOnIncline.incline"):
             di.predict(e, {"angle": angle})
 
 
@@ -45,7 +45,7 @@ def test_predict_throw_false_reports_the_code():
     e = di.Experiment.default("normal_impact")
     soft = di.Material(1e6, 0.3)
     e = di.Experiment(
-        di.scenes.NormalImpact(4e-3, 5e-3, soft, soft, 1.0),
+        di.scenes.NormalImpact(4e-3, 5e-3, soft, soft, velocity=1.0),
         di.Hertz(),
         None,
         method="quadrature",
@@ -156,7 +156,7 @@ def test_row_numbering_is_the_file_line(tmp_path):
     assert list(d2.lines) == [2, 4] and d2.scene == "sphere_on_incline"
     # the scene's check speaks SI (radians); the row as the file writes it
     # follows, so that 95 degrees is recognisable
-    match = r"line 6: `SphereOnIncline.angle`.*; the row gives drop_height_m = 0.3, "
+    match = r"line 6: `SphereOnIncline.incline`.*; the row gives drop_height_m = 0.3, "
     with pytest.raises(ValueError, match=match + "angle_deg = 95$"):
         di.fit(d, free="mu")
 
@@ -216,7 +216,7 @@ def test_float32_without_x64():
     m = 4 / 3 * math.pi * 5e-3**3 * 7850
     ref = float(
         di.simulate(
-            di.scenes.NormalImpact(m, 5e-3, ball, plate, 1.0),
+            di.scenes.NormalImpact(m, 5e-3, ball, plate, velocity=1.0),
             di.JacksonGreen(),
             "quadrature",
         ).cor_newton
@@ -387,7 +387,7 @@ def test_predict_under_jit_and_vmap():
 
     assert np.isfinite(float(jax.jit(cor)(0.5)))
     for f in (jax.jit(cor), lambda a: jax.vmap(cor)(jnp.array([0.5, a]))):
-        with pytest.raises(Exception, match="SphereOnIncline.angle"):
+        with pytest.raises(Exception, match="SphereOnIncline.incline"):
             jax.block_until_ready(f(1.6))
 
 

@@ -19,7 +19,7 @@ M_ROD, L_ROD = 0.05, 0.21
 
 def _disk(vx, vy=-2.0, m=0.1, r=0.01):
     return S.PlanarBody(
-        m, 0.4 * m * r**2, S.Disk(r), STEEL, STEEL, angle=0.0,
+        m, 0.4 * m * r**2, S.Disk(r), STEEL, STEEL, orientation=0.0,
         velocity_x=vx, velocity_y=vy, gravity=0.0,
     )  # fmt: skip
 
@@ -27,7 +27,7 @@ def _disk(vx, vy=-2.0, m=0.1, r=0.01):
 def _rod(angle, vx, vy=-1.0):
     return S.PlanarBody(
         M_ROD, M_ROD * L_ROD**2 / 12, S.Capsule(0.1, 0.005), STEEL, STEEL,
-        angle=angle, velocity_x=vx, velocity_y=vy, gravity=0.0,
+        orientation=angle, velocity_x=vx, velocity_y=vy, gravity=0.0,
     )  # fmt: skip
 
 
@@ -153,7 +153,7 @@ def test_a_wedged_link_is_reported_not_solved():
     steel = di.Material(207e9, 0.3, math.inf, 7850.0)
     d, length = 0.01, 0.2
     mass = 7850 * math.pi * d**2 / 4 * length
-    link = S.RotatingLink(mass, length, d, steel, steel, math.radians(30))
+    link = S.RotatingLink(mass, length, d, steel, steel, impact_angle=math.radians(30))
     out = di.rigid_impact(link, 2.0, 0.7, throw=False)
     assert out["result"] == di.RESULTS.never_separates
     assert np.isnan(float(out["angular_velocity_after"]))

@@ -40,11 +40,11 @@ KEYS = ("normal_velocity_after", "tangential_velocity_after", "angular_velocity_
 
 
 def ball(angle):
-    return di.scenes.SphereOnIncline(M, R, BALL, PRISM, angle, H)
+    return di.scenes.SphereOnIncline(M, R, BALL, PRISM, incline=angle, height=H)
 
 
 def bar(angle):
-    return di.scenes.FreeBar(BAR_MASS, BAR, PLATE, 0.3, angle=angle)
+    return di.scenes.FreeBar(BAR_MASS, BAR, PLATE, height=0.3, tilt=angle)
 
 
 def sharp_ball(phi, mu, **kw):
@@ -362,8 +362,13 @@ def test_stick_law_is_an_explicit_choice():
     ball = di.Material(208e9, 0.3)
     prism = di.Material(205e9, 0.29, 400e6)
     cases = [
-        (di.scenes.SphereOnIncline(0.0281, 9.5e-3, ball, prism, 0.455, 0.29), 0.2),
-        (di.scenes.FreeBar(0.05, ball, prism, 0.1, angle=0.3), 0.5),
+        (
+            di.scenes.SphereOnIncline(
+                0.0281, 9.5e-3, ball, prism, incline=0.455, height=0.29
+            ),
+            0.2,
+        ),
+        (di.scenes.FreeBar(0.05, ball, prism, height=0.1, tilt=0.3), 0.5),
     ]
     gaps = []
     for scene, mu in cases:

@@ -87,7 +87,7 @@ def normal_impact(v, e, m, s_y, method):
     body = di.Material(e, 0.3)
     flat = di.Material(e, 0.3, s_y)
     r = jnp.cbrt(3.0 * m / (4.0 * jnp.pi * DENSITY))
-    scene = di.scenes.NormalImpact(m, r, body, flat, v)
+    scene = di.scenes.NormalImpact(m, r, body, flat, velocity=v)
     return di.simulate(scene, di.JacksonGreen(), method)
 
 
@@ -170,7 +170,7 @@ def test_sphere_on_incline_with_friction():
 
     def one(h, phi, mu, s_y):
         sc = di.scenes.SphereOnIncline(
-            mass, 9.5e-3, ball, di.Material(205e9, 0.29, s_y), phi, h
+            mass, 9.5e-3, ball, di.Material(205e9, 0.29, s_y), incline=phi, height=h
         )
         r = di.simulate(
             sc,
@@ -222,9 +222,9 @@ def test_link_and_bar_with_friction(scene):
     def one(phi, mu, size):
         if scene == "link":
             mass = DENSITY * math.pi * 0.01**2 / 4.0 * size
-            sc = di.scenes.RotatingLink(mass, size, 0.01, steel, flat, phi)
+            sc = di.scenes.RotatingLink(mass, size, 0.01, steel, flat, impact_angle=phi)
         else:
-            sc = di.scenes.FreeBar(0.04718, steel, flat, size, angle=phi)
+            sc = di.scenes.FreeBar(0.04718, steel, flat, height=size, tilt=phi)
         return di.simulate(
             sc,
             di.JacksonGreen(),

@@ -32,7 +32,7 @@ TIGHT = di.SolverSettings(rtol=1e-12, atol=1e-14, slip_width=1e-7, max_steps=100
 
 
 def ball(angle, height=H, flat=PRISM):
-    return di.scenes.SphereOnIncline(M, R, BALL, flat, angle, height)
+    return di.scenes.SphereOnIncline(M, R, BALL, flat, incline=angle, height=height)
 
 
 def error(result, ref, v0):

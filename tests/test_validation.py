@@ -66,7 +66,7 @@ _RUNTIME_ERRORS = (eqx.EquinoxRuntimeError, jax.errors.JaxRuntimeError)
 
 
 def _traced(v):
-    sc = di.scenes.NormalImpact(MASS, RADIUS, steel(), steel(), v)
+    sc = di.scenes.NormalImpact(MASS, RADIUS, steel(), steel(), velocity=v)
     return di.simulate(sc, di.JacksonGreen()).cor_newton
 
 

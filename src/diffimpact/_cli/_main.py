@@ -118,7 +118,7 @@ def demo(args) -> int:
 
     def cor(sy, method):
         p = di.Material(205e9, 0.29, sy)
-        sc = di.scenes.NormalImpact(mass, radius, ball, p, args.velocity)
+        sc = di.scenes.NormalImpact(mass, radius, ball, p, velocity=args.velocity)
         # The demo's own valid constants: no traced input check, and a failure
         # is a NaN checked below rather than a raise from inside the program.
         # Without their host callbacks JAX stores the compiled gradient on
@@ -207,8 +207,8 @@ def _normal_experiment(args):
         radius,
         mats["body"],
         mats["flat"],
-        1.0 if args.velocity is None else args.velocity,
-        args.gravity or 0.0,
+        velocity=1.0 if args.velocity is None else args.velocity,
+        gravity=args.gravity or 0.0,
     )
     return di.Experiment(scene, _law(args.law or "jackson-green", args.cor))
 

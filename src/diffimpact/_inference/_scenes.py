@@ -76,13 +76,17 @@ def _ball_and_prism():
 
 def _sphere_on_incline() -> dict:
     scene = SphereOnIncline(
-        _BALL_MASS, _BALL_RADIUS, *_ball_and_prism(), math.radians(30.0), 0.29
+        _BALL_MASS,
+        _BALL_RADIUS,
+        *_ball_and_prism(),
+        incline=math.radians(30.0),
+        height=0.29,
     )
     return dict(scene=scene, law=JacksonGreen(), friction=Friction(0.2))
 
 
 def _normal_impact() -> dict:
-    scene = NormalImpact(_BALL_MASS, _BALL_RADIUS, *_ball_and_prism(), 1.0)
+    scene = NormalImpact(_BALL_MASS, _BALL_RADIUS, *_ball_and_prism(), velocity=1.0)
     return dict(scene=scene, law=JacksonGreen(), method="quadrature")
 
 
@@ -97,7 +101,9 @@ def _rotating_link() -> dict:
     mass = _STEEL_DENSITY * math.pi * diameter**2 / 4.0 * length
     steel = Material(207e9, 0.3, math.inf, _STEEL_DENSITY)
     flat = Material(207e9, 0.3, 400e6, _STEEL_DENSITY)
-    scene = RotatingLink(mass, length, diameter, steel, flat, math.radians(30.0))
+    scene = RotatingLink(
+        mass, length, diameter, steel, flat, impact_angle=math.radians(30.0)
+    )
     return dict(scene=scene, law=JacksonGreen(), friction=Friction(0.2))
 
 
@@ -106,7 +112,7 @@ def _free_bar() -> dict:
     # AISI 1045 flat, 45 deg, dropped 0.3 m.
     bar = Material(200.83e9, 0.3, 230.63e6, 7850.0)
     flat = Material(205e9, 0.29, 355e6, 7850.0)
-    scene = FreeBar(0.04718, bar, flat, 0.3)
+    scene = FreeBar(0.04718, bar, flat, height=0.3)
     return dict(scene=scene, law=JacksonGreen(), friction=Friction(0.2))
 
 
@@ -158,7 +164,7 @@ _PLANAR_BODY = {
 
 
 def _sphere_tangential_before(scene):
-    return scene.impact_speed * jnp.sin(scene.angle)
+    return scene.impact_speed * jnp.sin(scene.incline)
 
 
 SCENES: dict[str, SceneSpec] = {

@@ -22,7 +22,7 @@ _SHAPE_TYPES = {
 
 # The state a template body takes where the file has no column for it.
 _STATE = {
-    "orientation": ("angle", 0.0),
+    "orientation": ("orientation", 0.0),
     "velocity_x": ("velocity_x", 0.0),
     "velocity_y": ("velocity_y", -1.0),
     "angular_velocity_before": ("angular_velocity", 0.0),
@@ -66,7 +66,7 @@ def declared_body(declarations: Declarations, inputs: dict, path: str) -> Planar
 # A state any convex body can start from: falling, with no flat side of a
 # polygon or capsule facing the flat (0.1234 rad is no multiple of any
 # regular polygon's symmetry).
-_PLAIN = {"angle": 0.1234, "velocity_x": 0.0, "velocity_y": -1.0}
+_PLAIN = {"orientation": 0.1234, "velocity_x": 0.0, "velocity_y": -1.0}
 
 
 def _or_none(make):

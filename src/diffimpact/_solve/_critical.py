@@ -192,7 +192,7 @@ def critical_angles(
 
     - `make_scene`: a callable ``angle -> scene`` (a planar scene, e.g.
       ``lambda a: scenes.SphereOnIncline(m, r, ball, flat, a, h)`` or
-      ``lambda a: scenes.FreeBar(m, bar, flat, h, angle=a)``).  It may close
+      ``lambda a: scenes.FreeBar(m, bar, flat, height=h, tilt=a)``).  It may close
       over traced values (it is closure-converted), so derivatives with respect
       to a scene parameter flow too.
     - `law`, `friction`: the normal law and the `Friction`.

@@ -24,7 +24,7 @@ from .._checks import (
     require,
 )
 from .._materials import Material, contact_properties
-from ._base import rod_inertia
+from ._base import rod_inertia, scene_init
 from ._planar import AbstractPlanarScene
 
 
@@ -36,13 +36,16 @@ class AbstractRod(AbstractValidated):
     mass: Array = eqx.field(converter=as_float)
     body: Material
     flat: Material
-    height: Array = eqx.field(converter=as_float)
-    length: Array = eqx.field(converter=as_float, default=0.08)
-    diameter: Array = eqx.field(converter=as_float, default=0.01)
-    angle: Array = eqx.field(converter=as_float, default=math.pi / 4)
-    tip_radius: Array | None = eqx.field(converter=optional_float, default=None)
-    gravity: Array = eqx.field(converter=as_float, default=9.81)
-    cross_section_inertia: bool = eqx.field(static=True, default=False)
+    # keyword-only: the geometry with defaults, the state and the environment
+    height: Array = eqx.field(converter=as_float, kw_only=True)
+    length: Array = eqx.field(converter=as_float, default=0.08, kw_only=True)
+    diameter: Array = eqx.field(converter=as_float, default=0.01, kw_only=True)
+    tilt: Array = eqx.field(converter=as_float, default=math.pi / 4, kw_only=True)
+    tip_radius: Array | None = eqx.field(
+        converter=optional_float, default=None, kw_only=True
+    )
+    gravity: Array = eqx.field(converter=as_float, default=9.81, kw_only=True)
+    cross_section_inertia: bool = eqx.field(static=True, default=False, kw_only=True)
 
     def _checks(self):
         """The rules every such rod obeys, named after the scene class."""
@@ -54,7 +57,7 @@ class AbstractRod(AbstractValidated):
         ]
         if self.tip_radius is not None:
             out.append(positive(self.tip_radius, f"{name}.tip_radius", "m"))
-        a = self.angle
+        a = self.tilt
         out += [
             check(
                 self.length,
@@ -64,7 +67,7 @@ class AbstractRod(AbstractValidated):
             check(
                 a,
                 jnp.isfinite(a) & (a > 0) & (a <= jnp.pi / 2),
-                f"`{name}.angle` must lie in (0, pi/2] rad",
+                f"`{name}.tilt` must lie in (0, pi/2] rad",
             ),
             positive(self.gravity, f"{name}.gravity", "m/s^2"),
             positive(
@@ -89,6 +92,7 @@ class AbstractRod(AbstractValidated):
         return rod_inertia(self, 1.0 / 12.0)
 
 
+@scene_init(angle="tilt (the bar's angle to the flat at first contact, rad)")
 class FreeBar(AbstractRod, AbstractPlanarScene):
     """A planar rigid rod falling without spin onto a fixed horizontal flat,
     striking it with the hemispherical tip of its lower end (Wang & Fu 2019;
@@ -124,13 +128,14 @@ class FreeBar(AbstractRod, AbstractPlanarScene):
 
     **Approach.** Dropped from rest with the tip's lowest point ``height`` ``h``
     above the flat, the bar falls ballistically, translating without spin, and
-    meets the flat at ``theta = angle`` with ``v' = sqrt(2 g h)`` (closed form,
+    meets the flat at ``theta = tilt`` with ``v' = sqrt(2 g h)`` (closed form,
     not integrated).  Gravity also acts during the contact.
 
-    **Arguments:** `mass` [kg]; `body`, `flat` (materials); `height` ``h`` [m]
-    (> 0); `length` [m] (default 0.08); `diameter` [m] (default 0.01); `angle`
-    ``theta`` [rad] in (0, pi/2] (default pi/4); `tip_radius` [m] (default
-    ``diameter / 2``; ``length`` must exceed twice it); `gravity` [m/s^2]
+    **Arguments:** `mass` [kg]; `body`, `flat` (materials); keyword-only:
+    `height` ``h`` [m] (> 0); `length` [m] (default 0.08); `diameter` [m]
+    (default 0.01); `tilt` ``theta`` [rad] in (0, pi/2] (default pi/4);
+    `tip_radius` [m] (default ``diameter / 2``; ``length`` must exceed twice
+    it); `gravity` [m/s^2]
     (default 9.81); `cross_section_inertia` (static bool, default False).
     The defaults are the bars of Wang & Fu (2019) (80 mm, 10 mm diameter, ``R_b`` =
     5 mm, 45 deg); e.g. the ``xi = 1/8`` bar from 0.3 m::
@@ -146,7 +151,7 @@ class FreeBar(AbstractRod, AbstractPlanarScene):
     (contact point).
     """
 
-    data_inputs: ClassVar = {"drop_height": "height", "angle": "angle", "mass": "mass"}
+    data_inputs: ClassVar = {"drop_height": "height", "angle": "tilt", "mass": "mass"}
     data_required: ClassVar = ("drop_height",)
 
     @property
@@ -162,20 +167,20 @@ class FreeBar(AbstractRod, AbstractPlanarScene):
 
     def initial_state(self):
         v = self.impact_speed
-        zero = jnp.zeros_like(v + self.angle)
+        zero = jnp.zeros_like(v + self.tilt)
         return jnp.stack([zero, zero, zero]), jnp.stack([zero, -v, zero])
 
     @property
     def contact_height(self):
         """``y_0 = R_b + l sin(theta_0)``: centre-of-mass height at first contact."""
-        return self.radius + self.arm * jnp.sin(self.angle)
+        return self.radius + self.arm * jnp.sin(self.tilt)
 
     def kinematics(self, q):
         turn, r, arm = q[2], self.radius, self.arm
-        theta = self.angle + turn
+        theta = self.tilt + turn
         one, zero = jnp.ones_like(theta), jnp.zeros_like(theta)
         # R_b + l sin(theta) - y, without the cancellation of nearly equal lengths
-        d = 2.0 * arm * jnp.cos(self.angle + 0.5 * turn) * jnp.sin(0.5 * turn) - q[1]
+        d = 2.0 * arm * jnp.cos(self.tilt + 0.5 * turn) * jnp.sin(0.5 * turn) - q[1]
         j_n = jnp.stack([zero, -one, arm * jnp.cos(theta)])
         j_t = jnp.stack([one, zero, -(arm * jnp.sin(theta) + r)])
         return d, j_n, j_t
@@ -191,7 +196,7 @@ class FreeBar(AbstractRod, AbstractPlanarScene):
         _, j_n, j_t = self.kinematics(q)
         return {
             "angular_velocity_after": q_dot[2],
-            "angle_after": self.angle + q[2],
+            "angle_after": self.tilt + q[2],
             "normal_velocity_after": q_dot[1],
             "tangential_velocity_after": q_dot[0],
             "normal_velocity_contact_after": -(j_n @ q_dot),

@@ -3,6 +3,8 @@
 from __future__ import annotations
 
 import abc
+import dataclasses
+import functools
 from collections.abc import Mapping
 from typing import ClassVar
 
@@ -49,6 +51,44 @@ class AbstractScene(AbstractValidated):
     def extras(self, rebound_velocity) -> dict:
         """Scene-specific outputs, given the normal separation speed."""
         return {}
+
+
+def scene_init(**renamed: str):
+    """Class decorator of a scene's constructor.  Its positional arguments are
+    mass (and inertia), geometry and materials, in that order; the state and
+    the environment are keyword-only, and too many positional arguments get a
+    message that names them.  A keyword the scene no longer takes (``angle``,
+    which meant the incline in one scene, a tilt in another and an
+    orientation in a third) is refused with a message naming the field that
+    replaced it.  ``renamed``: old name -> ``"new (what it is)"``."""
+
+    def wrap(cls):
+        init = cls.__init__
+        fields = dataclasses.fields(cls)
+        positional = [f.name for f in fields if f.init and not f.kw_only]
+        keyword = [f.name for f in fields if f.init and f.kw_only]
+
+        @functools.wraps(init)
+        def __init__(self, *args, **kwargs):
+            for old, new in renamed.items():
+                if old in kwargs:
+                    name = new.split(" ")[0]
+                    raise TypeError(
+                        f"`{cls.__name__}.{old}` is now `{name}`: write "
+                        f"{name}=... ({new.partition(' ')[2].strip('()')})"
+                    )
+            if len(args) > len(positional):
+                raise TypeError(
+                    f"{cls.__name__} takes {', '.join(positional)} by position; "
+                    f"{', '.join(keyword)} are keyword-only (e.g. "
+                    f"{keyword[0]}=...)"
+                )
+            init(self, *args, **kwargs)
+
+        cls.__init__ = __init__
+        return cls
+
+    return wrap
 
 
 def rod_inertia(rod, factor):

@@ -12,6 +12,7 @@ from jaxtyping import Array
 
 from .._checks import as_float, check, finite, optional_float, positive_fields
 from .._materials import Material, contact_properties
+from ._base import scene_init
 from ._planar import AbstractPlanarScene
 from ._shapes import AbstractShape, down, down_change
 
@@ -23,13 +24,14 @@ _TOUCH_TOL = 1e-9
 _ADVANCE_STEPS = 100_000
 
 
+@scene_init(angle="orientation (the body's angle at first contact, rad)")
 class PlanarBody(AbstractPlanarScene):
     """A rigid body of convex `shape` striking a flat, started from its state
     at first contact (S-11).
 
     **Frame.** The flat is the line ``y = 0`` through the body's lowest point
     at first contact; ``x`` runs along it, ``y`` away from it, angles and
-    angular velocities are counter-clockwise positive.  ``angle`` is the
+    angular velocities are counter-clockwise positive.  ``orientation`` is the
     angle from the flat's ``x`` axis to the body's ``x`` axis (the frame its
     `shape` is given in).  A flat tilted by ``incline`` (the ball-prism
     experiments) has ``x`` pointing down the slope: gravity then has the
@@ -52,7 +54,8 @@ class PlanarBody(AbstractPlanarScene):
 
     **Arguments:** `mass` [kg]; `inertia` [kg m^2] about the centre of mass;
     `shape` (`Disk`, `Ellipse`, `Capsule`, `RoundedPolygon`); `body`, `flat`
-    (materials); `angle` [rad]; `velocity_x`, `velocity_y` [m/s] of the centre of mass
+    (materials); keyword-only: `orientation` [rad]; `velocity_x`, `velocity_y`
+    [m/s] of the centre of mass
     (``velocity_y < 0`` falls); `angular_velocity` [rad/s]; `com_x`, `com_y`
     [m]: the centre of mass in the shape's frame (default its origin);
     `incline` [rad] in [0, pi/2) (default 0); `gravity` [m/s^2] (default 9.81);
@@ -73,7 +76,7 @@ class PlanarBody(AbstractPlanarScene):
     """
 
     data_inputs: ClassVar = {
-        "orientation": "angle",
+        "orientation": "orientation",
         "velocity_x": "velocity_x",
         "velocity_y": "velocity_y",
         "angular_velocity_before": "angular_velocity",
@@ -87,15 +90,19 @@ class PlanarBody(AbstractPlanarScene):
     shape: AbstractShape
     body: Material
     flat: Material
-    angle: Array = eqx.field(converter=as_float)
-    velocity_x: Array = eqx.field(converter=as_float)
-    velocity_y: Array = eqx.field(converter=as_float)
-    angular_velocity: Array = eqx.field(converter=as_float, default=0.0)
-    com_x: Array = eqx.field(converter=as_float, default=0.0)
-    com_y: Array = eqx.field(converter=as_float, default=0.0)
-    incline: Array = eqx.field(converter=as_float, default=0.0)
-    gravity: Array = eqx.field(converter=as_float, default=9.81)
-    height: Array | None = eqx.field(converter=optional_float, default=None)
+    # keyword-only: the state at first contact (or at `height`), the centre
+    # of mass, the environment
+    orientation: Array = eqx.field(converter=as_float, kw_only=True)
+    velocity_x: Array = eqx.field(converter=as_float, kw_only=True)
+    velocity_y: Array = eqx.field(converter=as_float, kw_only=True)
+    angular_velocity: Array = eqx.field(converter=as_float, default=0.0, kw_only=True)
+    com_x: Array = eqx.field(converter=as_float, default=0.0, kw_only=True)
+    com_y: Array = eqx.field(converter=as_float, default=0.0, kw_only=True)
+    incline: Array = eqx.field(converter=as_float, default=0.0, kw_only=True)
+    gravity: Array = eqx.field(converter=as_float, default=9.81, kw_only=True)
+    height: Array | None = eqx.field(
+        converter=optional_float, default=None, kw_only=True
+    )
 
     def _checks(self):
         com = jnp.stack([self.com_x, self.com_y])
@@ -118,7 +125,7 @@ class PlanarBody(AbstractPlanarScene):
                 "shape from the centre of mass)^2: the inertia, the mass and the "
                 "shape do not fit one body",
             ),
-            finite(self.angle, "PlanarBody.angle"),
+            finite(self.orientation, "PlanarBody.orientation"),
             finite(self.velocity_x, "PlanarBody.velocity_x"),
             finite(self.angular_velocity, "PlanarBody.angular_velocity"),
             *self._state_checks(),
@@ -141,9 +148,11 @@ class PlanarBody(AbstractPlanarScene):
                 # points at once: the first contact is not one point, and which
                 # of the two the model picks flips with the angle's last bits.
                 check(
-                    self.angle,
-                    self.shape.margin(down(self.angle)) > 1e-9 * self.largest_lever(),
-                    "`PlanarBody.angle`: a flat side of the shape faces the flat, "
+                    self.orientation,
+                    self.shape.margin(down(self.orientation))
+                    > 1e-9 * self.largest_lever(),
+                    "`PlanarBody.orientation`: a flat side of the shape faces the "
+                    "flat, "
                     "so two points touch at once (a line contact, outside this "
                     "point-contact model); give the angle at which one end or "
                     "corner touches first",
@@ -189,7 +198,7 @@ class PlanarBody(AbstractPlanarScene):
     def gap(self, t):
         """Height [m] of the body's lowest point above the flat after a free
         flight of ``t`` [s] from the given state (needs `height`) (S-12)."""
-        r, _ = self._lever(self.angle + self.angular_velocity * t)
+        r, _ = self._lever(self.orientation + self.angular_velocity * t)
         g_n = self.gravity * jnp.cos(self.incline)
         return self.height + self.velocity_y * t - 0.5 * g_n * t**2 + r[1]
 
@@ -197,7 +206,7 @@ class PlanarBody(AbstractPlanarScene):
         """Time [s] of the free flight from the given state to first contact
         (0 without `height`) (S-12)."""
         if self.height is None:
-            return jnp.zeros_like(self.angle)
+            return jnp.zeros_like(self.orientation)
         g_n = self.gravity * jnp.cos(self.incline)
         # The centre of mass reaches the flat at t_end, written without a
         # division by g (g = 0 is allowed): the lowest point is there by then.
@@ -256,7 +265,7 @@ class PlanarBody(AbstractPlanarScene):
         g = self.gravity
         return dataclasses.replace(
             self,
-            angle=self.angle + self.angular_velocity * t,
+            orientation=self.orientation + self.angular_velocity * t,
             velocity_x=self.velocity_x + g * jnp.sin(self.incline) * t,
             velocity_y=self.velocity_y - g * jnp.cos(self.incline) * t,
             height=None,
@@ -286,22 +295,22 @@ class PlanarBody(AbstractPlanarScene):
         return jnp.stack([c * rel_x - s * rel_y, s * rel_x + c * rel_y]), rho
 
     def _approach_speed(self):
-        r, _ = self._lever(self.angle)
+        r, _ = self._lever(self.orientation)
         return -self.velocity_y - r[0] * self.angular_velocity
 
     def mass_diagonal(self):
         return jnp.stack([self.mass, self.mass, self.inertia])
 
     def initial_state(self):
-        zero = jnp.zeros_like(self.velocity_x + self.angle)
+        zero = jnp.zeros_like(self.velocity_x + self.orientation)
         q_dot0 = jnp.stack([self.velocity_x, self.velocity_y, self.angular_velocity])
         return jnp.stack([zero, zero, zero]), q_dot0
 
     def kinematics(self, q):
-        r, _ = self._lever(self.angle + q[2])
+        r, _ = self._lever(self.orientation + q[2])
         # r_y = -(h(u) - c . u): the drop of the contact point as the body
         # turns, without cancellation (`down_change`).
-        u0, du = down(self.angle), down_change(self.angle, q[2])
+        u0, du = down(self.orientation), down_change(self.orientation, q[2])
         com = jnp.stack([self.com_x, self.com_y])
         d = -q[1] + self.shape.support_change(u0, du) - com @ du
         one, zero = jnp.ones_like(r[0]), jnp.zeros_like(r[0])
@@ -314,7 +323,9 @@ class PlanarBody(AbstractPlanarScene):
         )
 
     def contact(self):
-        return contact_properties(self.body, self.flat, self._lever(self.angle)[1])
+        return contact_properties(
+            self.body, self.flat, self._lever(self.orientation)[1]
+        )
 
     def report(self, q, q_dot):
         d, j_n, j_t = self.kinematics(q)
@@ -324,7 +335,7 @@ class PlanarBody(AbstractPlanarScene):
             "tangential_velocity_after": q_dot[0],
             "normal_velocity_after": q_dot[1],
             "angular_velocity_after": q_dot[2],
-            "angle_after": self.angle + q[2],
+            "angle_after": self.orientation + q[2],
             "normal_velocity_contact_after": -(j_n @ q_dot),
             "tangential_velocity_contact_after": j_t @ q_dot,
         }

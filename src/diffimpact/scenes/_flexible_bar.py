@@ -36,6 +36,7 @@ from jaxtyping import Array
 
 from .._checks import check, optional_float
 from ._bar import FreeBar
+from ._base import scene_init
 
 
 @functools.cache
@@ -85,6 +86,7 @@ def _bending_slope(xp, xi, lam, one_minus, one_plus, beta):
     )
 
 
+@scene_init(angle="tilt (the bar's angle to the flat at first contact, rad)")
 class FlexibleBar(FreeBar):
     """`FreeBar` whose bar vibrates: `axial_modes` axial and `bending_modes`
     bending modes of the free-free uniform bar (Wang & Fu 2019, eqs. 6-10)
@@ -231,7 +233,7 @@ class FlexibleBar(FreeBar):
         na = self.axial_modes
         d_rigid, j_n, j_t = super().kinematics(q[:3])
         phi, psi, slope = self._tip_shapes()
-        theta = self.angle + q[2]
+        theta = self.tilt + q[2]
         s, c = jnp.sin(theta), jnp.cos(theta)
         u, w = phi @ q[3 : 3 + na], psi @ q[3 + na :]
         d = d_rigid + u * s - w * c

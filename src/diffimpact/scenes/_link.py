@@ -14,7 +14,7 @@ from jaxtyping import Array
 
 from .._checks import as_float, check, optional_float, positive, require
 from .._materials import Material, contact_properties
-from ._base import NormalProblem, rod_inertia
+from ._base import NormalProblem, rod_inertia, scene_init
 from ._planar import AbstractPlanarScene
 
 _IMPACT_ANGLE = "`RotatingLink.impact_angle` must lie in (0, pi/2) rad"
@@ -25,6 +25,7 @@ _RELEASE_ANGLE = (
 )
 
 
+@scene_init()
 class RotatingLink(AbstractPlanarScene):
     """A uniform rod pinned at one end swings down from rest and strikes a fixed
     horizontal flat with its rounded tip (docs/physics/scenes.md).
@@ -78,7 +79,7 @@ class RotatingLink(AbstractPlanarScene):
     solver.
 
     **Arguments:** `mass` [kg]; `length` ``L`` [m]; `diameter` ``D`` [m]; `body`,
-    `flat` (materials); `impact_angle` ``alpha`` [rad] in (0, pi/2);
+    `flat` (materials); keyword-only: `impact_angle` ``alpha`` [rad] in (0, pi/2);
     `release_angle` ``beta`` [rad] in [-pi/2, alpha) (default 0); `tip_radius`
     [m] (default ``D / 2``; must be < ``L``); `gravity` [m/s^2] (default 9.81);
     `cross_section_inertia` (static bool, default False).
@@ -104,11 +105,14 @@ class RotatingLink(AbstractPlanarScene):
     diameter: Array = eqx.field(converter=as_float)
     body: Material
     flat: Material
-    impact_angle: Array = eqx.field(converter=as_float)
-    release_angle: Array = eqx.field(converter=as_float, default=0.0)
-    tip_radius: Array | None = eqx.field(converter=optional_float, default=None)
-    gravity: Array = eqx.field(converter=as_float, default=9.81)
-    cross_section_inertia: bool = eqx.field(static=True, default=False)
+    # keyword-only: the state, the tip, the environment
+    impact_angle: Array = eqx.field(converter=as_float, kw_only=True)
+    release_angle: Array = eqx.field(converter=as_float, default=0.0, kw_only=True)
+    tip_radius: Array | None = eqx.field(
+        converter=optional_float, default=None, kw_only=True
+    )
+    gravity: Array = eqx.field(converter=as_float, default=9.81, kw_only=True)
+    cross_section_inertia: bool = eqx.field(static=True, default=False, kw_only=True)
 
     def _checks(self):
         out = [

@@ -59,6 +59,7 @@ from .._checks import (
 )
 from .._materials import ContactProperties, Material, contact_properties
 from ._bar import AbstractRod, FreeBar
+from ._base import scene_init
 
 
 class MechanismScales(eqx.Module):
@@ -128,6 +129,7 @@ class AbstractMechanism(AbstractValidated):
 # --------------------------------------------------------------------------
 
 
+@scene_init(angle="tilt (the bar's angle to the board at the first impact, rad)")
 class BouncingBar(AbstractRod, AbstractMechanism):
     """A free rigid bar with hemispherical ends dropped onto a flat board under
     gravity, bouncing until it settles (source: Constantin et al. 2022, section
@@ -151,7 +153,7 @@ class BouncingBar(AbstractRod, AbstractMechanism):
     with ``cross_section_inertia``); gravity ``m g y`` is the potential.
 
     **Start.** At rest, without spin, with the lowest point of end A ``height``
-    ``h`` above the board at ``theta = angle``: the first impact is exactly
+    ``h`` above the board at ``theta = tilt``: the first impact is exactly
     `first_impact` (a `FreeBar`), reached at ``v' = sqrt(2 g h)``.
 
     **Laws.** The source's board model is ADAMS ``IMPACT`` with (kg-mm-s)
@@ -166,7 +168,7 @@ class BouncingBar(AbstractRod, AbstractMechanism):
 
     **Arguments:** as `FreeBar`: `mass` [kg]; `body`, `flat`
     (materials); `height` ``h`` [m] (> 0); `length` [m] (0.08); `diameter` [m]
-    (0.01); `angle` [rad] in (0, pi/2] (pi/4); `tip_radius` [m] (``diameter /
+    (0.01); `tilt` [rad] in (0, pi/2] (pi/4); `tip_radius` [m] (``diameter /
     2``); `gravity` [m/s^2] (9.81); `cross_section_inertia` (static, False).
 
     `report` adds ``angle``, ``angular_velocity`` (``theta_dot``),
@@ -180,17 +182,17 @@ class BouncingBar(AbstractRod, AbstractMechanism):
             self.mass,
             self.body,
             self.flat,
-            self.height,
+            height=self.height,
             length=self.length,
             diameter=self.diameter,
-            angle=self.angle,
+            tilt=self.tilt,
             tip_radius=self.tip_radius,
             gravity=self.gravity,
             cross_section_inertia=self.cross_section_inertia,
         )
 
     def initial_state(self):
-        a = self.angle
+        a = self.tilt
         y0 = self.radius + self.arm * jnp.sin(a) + self.height
         zero = jnp.zeros_like(y0)
         return jnp.stack([zero, y0, a]), jnp.stack([zero, zero, zero])

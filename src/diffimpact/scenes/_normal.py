@@ -10,9 +10,10 @@ from jaxtyping import Array
 
 from .._checks import as_float, check, finite, positive_fields
 from .._materials import Material, contact_properties
-from ._base import AbstractScene, NormalProblem
+from ._base import AbstractScene, NormalProblem, scene_init
 
 
+@scene_init()
 class NormalImpact(AbstractScene):
     """A sphere or rounded tip (mass ``m``, radius ``R``) hitting a flat head-on.
 
@@ -20,9 +21,11 @@ class NormalImpact(AbstractScene):
 
     - `mass` [kg] > 0; `radius` [m] > 0 (of the sphere or tip);
     - `body`, `flat`: `diffimpact.Material` of the moving body and the flat;
-    - `velocity`: normal approach speed at first contact [m/s], > 0;
-    - `gravity`: acceleration pushing the body into the flat [m/s^2] (default 0:
-      gravity neglected, as it is against contact forces of kN over microseconds).
+    - keyword-only: `velocity`: normal approach speed at first contact
+      [m/s], > 0;
+    - keyword-only: `gravity`: acceleration pushing the body into the flat
+      [m/s^2] (default 0: gravity neglected, as it is against contact forces
+      of kN over microseconds).
     """
 
     data_inputs: ClassVar = dict(
@@ -34,8 +37,9 @@ class NormalImpact(AbstractScene):
     radius: Array = eqx.field(converter=as_float)
     body: Material
     flat: Material
-    velocity: Array = eqx.field(converter=as_float)
-    gravity: Array = eqx.field(converter=as_float, default=0.0)
+    # keyword-only: the state at first contact and the environment
+    velocity: Array = eqx.field(converter=as_float, kw_only=True)
+    gravity: Array = eqx.field(converter=as_float, default=0.0, kw_only=True)
 
     def _checks(self):
         return [

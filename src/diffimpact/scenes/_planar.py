@@ -18,7 +18,7 @@ from jaxtyping import Array
 
 from .._checks import as_float, check, positive
 from .._materials import Material, contact_properties
-from ._base import AbstractScene, NormalProblem
+from ._base import AbstractScene, NormalProblem, scene_init
 
 
 class AbstractPlanarScene(AbstractScene):
@@ -102,6 +102,7 @@ class AbstractPlanarScene(AbstractScene):
         )
 
 
+@scene_init(angle="incline (the incline of the flat, rad)")
 class SphereOnIncline(AbstractPlanarScene):
     """A ball dropped vertically from height ``h`` onto a plane tilted ``phi``
     (the ball-prism experiments of Alaci, Filote & Ciornei; `data/ball_prism.csv`).
@@ -113,14 +114,14 @@ class SphereOnIncline(AbstractPlanarScene):
     ``v' sin(phi)`` tangential (closed form, not integrated).  Gravity also
     acts during the contact.
 
-    **Arguments:** `mass` [kg], `radius` [m], `body`, `flat` (materials),
-    `angle` (``phi`` [rad], in [0, pi/2)), `height` [m] (> 0), `gravity`
-    [m/s^2] (> 0, default 9.81).
+    **Arguments:** `mass` [kg], `radius` [m], `body`, `flat` (materials);
+    keyword-only: `incline` (``phi`` [rad], in [0, pi/2)), `height` [m]
+    (> 0), `gravity` [m/s^2] (> 0, default 9.81).
     """
 
     data_inputs: ClassVar = {
         "drop_height": "height",
-        "angle": "angle",
+        "angle": "incline",
         "mass": "mass",
         "radius": "radius",
     }
@@ -130,21 +131,21 @@ class SphereOnIncline(AbstractPlanarScene):
     radius: Array = eqx.field(converter=as_float)
     body: Material
     flat: Material
-    angle: Array = eqx.field(converter=as_float)
-    height: Array = eqx.field(converter=as_float)
-    gravity: Array = eqx.field(converter=as_float, default=9.81)
+    incline: Array = eqx.field(converter=as_float, kw_only=True)
+    height: Array = eqx.field(converter=as_float, kw_only=True)
+    gravity: Array = eqx.field(converter=as_float, default=9.81, kw_only=True)
     normal_decouples: ClassVar[bool] = True
     tangential_decouples: ClassVar[bool] = True
 
     def _checks(self):
-        a = self.angle
+        a = self.incline
         return [
             positive(self.mass, "SphereOnIncline.mass", "kg"),
             positive(self.radius, "SphereOnIncline.radius", "m"),
             check(
                 a,
                 jnp.isfinite(a) & (a >= 0) & (a < jnp.pi / 2),
-                "`SphereOnIncline.angle` must lie in [0, pi/2) rad",
+                "`SphereOnIncline.incline` must lie in [0, pi/2) rad",
             ),
             positive(
                 self.height,
@@ -170,7 +171,7 @@ class SphereOnIncline(AbstractPlanarScene):
         v = self.impact_speed
         zero = jnp.zeros_like(v)
         q0 = jnp.stack([zero, zero, zero])
-        q_dot0 = jnp.stack([v * jnp.cos(self.angle), v * jnp.sin(self.angle), zero])
+        q_dot0 = jnp.stack([v * jnp.cos(self.incline), v * jnp.sin(self.incline), zero])
         return q0, q_dot0
 
     def kinematics(self, q):
@@ -182,7 +183,7 @@ class SphereOnIncline(AbstractPlanarScene):
     def generalized_gravity(self):
         mg = self.mass * self.gravity
         return jnp.stack(
-            [mg * jnp.cos(self.angle), mg * jnp.sin(self.angle), jnp.zeros_like(mg)]
+            [mg * jnp.cos(self.incline), mg * jnp.sin(self.incline), jnp.zeros_like(mg)]
         )
 
     def contact(self):
@@ -193,8 +194,8 @@ class SphereOnIncline(AbstractPlanarScene):
         return NormalProblem(
             mass=self.mass,
             contact=self.contact(),
-            velocity=self.impact_speed * jnp.cos(self.angle),
-            gravity=self.gravity * jnp.cos(self.angle),
+            velocity=self.impact_speed * jnp.cos(self.incline),
+            gravity=self.gravity * jnp.cos(self.incline),
         )
 
     def report(self, q, q_dot):
@@ -206,9 +207,9 @@ class SphereOnIncline(AbstractPlanarScene):
 
     def frictionless_report(self, contact_time):
         """Tangential velocity and spin without friction: gravity alone acts."""
-        v_t = self.impact_speed * jnp.sin(self.angle)
+        v_t = self.impact_speed * jnp.sin(self.incline)
         return {
             "tangential_velocity_after": v_t
-            + self.gravity * jnp.sin(self.angle) * contact_time,
+            + self.gravity * jnp.sin(self.incline) * contact_time,
             "angular_velocity_after": jnp.zeros_like(v_t),
         }
