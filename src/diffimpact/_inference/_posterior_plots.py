@@ -93,31 +93,20 @@ def predictive(result):
         ax = axes[0, j]
         model, rep, m = pp["model"][:, :, j], pp["replicated"][:, :, j], measured[:, j]
         unit = unit_label(q)
-        if n <= 60:  # row by row
-            ax.vlines(
-                lines,
-                rep[0],
-                rep[2],
-                color="C0",
-                alpha=0.3,
-                lw=6,
-                label="replicated, 90 %",
-            )
+        # the replicated data's 90 % band: row by row, or against the
+        # measurement when the rows are too many to tell apart
+        few = n <= 60
+        ax.vlines(
+            lines if few else m, rep[0], rep[2], color="C0",
+            alpha=0.3 if few else 0.15, lw=6 if few else 1, label="replicated, 90 %",
+        )  # fmt: skip
+        if few:  # row by row
             ax.vlines(lines, model[0], model[2], color="C0", lw=2, label="model, 90 %")
             ax.plot(lines, model[1], "_", color="C0", ms=10)
             ax.plot(lines, m, "ko", ms=4, label="measured")
             ax.set_xlabel("line in the data file")
             ax.set_ylabel(f"{q.replace('_', ' ')}{unit}")
         else:  # many rows: measured against the posterior median
-            ax.vlines(
-                m,
-                rep[0],
-                rep[2],
-                color="C0",
-                alpha=0.15,
-                lw=1,
-                label="replicated, 90 %",
-            )
             ax.plot(m, model[1], "o", color="C0", ms=2, label="model median")
             lo, hi = np.nanmin(m), np.nanmax(m)
             ax.plot([lo, hi], [lo, hi], "k--", lw=0.8)
