@@ -17,12 +17,13 @@ class RESULTS(eqx.Enumeration):
     Every result carries one in its ``result`` field.  With ``throw=True``
     (the default) a failure raises: eagerly as the matching
     `SimulationError` subclass, under ``jax.jit``/``jax.vmap`` as an
-    ``equinox`` runtime error with the same message.  With ``throw=False``
-    nothing raises: a failed element's floating-point outputs are NaN and its
+    ``equinox`` runtime error with the same message.  With ``throw=False`` a
+    failed solve does not raise (invalid input still does, naming the field):
+    a failed element's floating-point outputs are NaN and its
     ``result`` says why, and the other elements of a batch are unaffected.
     Compare with ``result == diffimpact.RESULTS.successful``; under ``vmap``
-    ``result._value`` is the integer code array (``RESULTS[...]`` of an item
-    gives its message).
+    ``ImpactResult.code`` is the integer code array (`result_name` names a
+    code, ``RESULTS[...]`` of an item gives its message).
     """
 
     successful = ""
@@ -182,6 +183,7 @@ class ImpactResult(eqx.Module):
     - `impulse_compression`, `impulse_restitution` [N s]; `work_compression`,
       `work_restitution` [J] (work of the contact force, both positive).
     - `num_steps`: accepted + rejected solver steps (0 for quadrature).
+    - `code` (property): the integer code of `result` (0: successful).
     - `result`: a `RESULTS` code; with ``simulate(..., throw=False)`` a
       failed impact has NaN outputs and says here why.
     - `history`: a `History` when ``n_history > 0``, else None.
@@ -206,3 +208,9 @@ class ImpactResult(eqx.Module):
     history: History | None = None
     extras: dict = eqx.field(default_factory=dict)
     result: RESULTS = eqx.field(default_factory=lambda: RESULTS.successful)
+
+    @property
+    def code(self) -> Array:
+        """The integer `RESULTS` code of ``result`` (0: successful), an array
+        under ``vmap``: ``diffimpact.result_name(code)`` names one."""
+        return self.result._value
