@@ -122,3 +122,19 @@ def test_the_state_is_keyword_only():
         di.scenes.RotatingLink(0.05, 0.1, 0.01, _B, _F, 0.5)
     scene = di.scenes.SphereOnIncline(4e-3, 5e-3, _B, _F, incline=0.3, height=0.1)
     assert float(scene.incline) == 0.3 and float(scene.height) == 0.1
+
+
+def test_the_nuts_bar_counts_warm_up_and_sampling_divergences_apart():
+    """The bar once said "7 divergent" where the summary said 0: it counted
+    warm-up.  Records as the sampler keeps them: per chunk, (chains, steps)
+    arrays, the divergence flags third."""
+    from diffimpact._inference._posterior import _divergences
+
+    flags = np.zeros((2, 40), bool)
+    flags[0, [3, 5, 7]] = True  # warm-up (the first 20 steps)
+    flags[1, 30] = True  # sampling
+    records = [(None, None, flags[:, :20]), (None, None, flags[:, 20:])]
+    assert _divergences(records[:1], 20, 20) == "warm-up, 3 divergent in warm-up"
+    assert _divergences(records, 20, 40) == (
+        "sampling, 1 divergent (3 in warm-up, not kept)"
+    )

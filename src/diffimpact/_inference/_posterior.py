@@ -274,9 +274,7 @@ def posterior(
         records.append(jax.tree.map(np.asarray, rec))
         if bar:
             done = min(k0 + chunk, num_warmup + num_samples)
-            phase = "warm-up" if done <= num_warmup else "sampling"
-            div = sum(int(r[2].sum()) for r in records)
-            bar.update(done, f"{phase}, {div} divergent")
+            bar.update(done, _divergences(records, num_warmup, done))
     if bar:
         bar.close()
         bar.message("diagnostics and posterior predictive...", end="\n")
@@ -297,6 +295,17 @@ def posterior(
         noise,
         seconds,
     )
+
+
+def _divergences(records, num_warmup: int, done: int) -> str:
+    """The bar's text: the phase, and the divergent transitions of warm-up
+    and of sampling counted apart (the summary reports sampling's only; a
+    warm-up divergence while the step size adapts is expected)."""
+    div = np.concatenate([r[2] for r in records], axis=1)
+    warm, kept = int(div[:, :num_warmup].sum()), int(div[:, num_warmup:].sum())
+    if done <= num_warmup:
+        return f"warm-up, {warm} divergent in warm-up"
+    return f"sampling, {kept} divergent ({warm} in warm-up, not kept)"
 
 
 def _failed_derivative(names, carry, transforms, k0, chunk) -> SolverError:
