@@ -6,6 +6,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+import diffimpact as di
 from diffimpact._cli._main import main
 
 
@@ -30,6 +31,12 @@ def test_fit_writes_outputs_and_never_overwrites(tmp_path, capsys):
     fit = json.loads((out / "fit.json").read_text())
     s_y = fit["parameters"]["yield_strength"]
     assert abs(s_y["value"] / 400e6 - 1) < 0.05 and s_y["std_error"] > 0
+    import hashlib
+
+    prov = fit["provenance"]
+    assert prov["versions"]["diffimpact"] == di.__version__
+    assert prov["versions"]["jax"] and prov["command"][0] == "diffimpact"
+    assert prov["data_sha256"] == hashlib.sha256(data.read_bytes()).hexdigest()
     rows = (out / "residuals.csv").read_text().splitlines()
     assert rows[0].startswith("line,impact_velocity,quantity") and len(rows) == 7
     assert (out / "fit.png").stat().st_size > 0 and (out / "loop.png").exists()

@@ -322,7 +322,12 @@ def _fit_and_write(args, out) -> int:
     print(result.summary())
     with open_new(os.path.join(out, "fit.json"), args.force) as fh:
         json.dump(
-            {"data": os.path.abspath(args.data), "scene": scene, **result.to_dict()},
+            {
+                "data": os.path.abspath(args.data),
+                "scene": scene,
+                **result.to_dict(),
+                "provenance": provenance(args),
+            },
             fh,
             indent=2,
             allow_nan=False,  # strict JSON: to_dict writes null for inf
@@ -332,7 +337,8 @@ def _fit_and_write(args, out) -> int:
     note = plot_loop(result, os.path.join(out, "loop.png"), args.force)
     if args.posterior:
         _posterior(args, data, experiment, free, start, bounds, out, result)
-    files = _files(args)
+    # no empty plot: a scene that keeps no force history gets no loop.png
+    files = tuple(f for f in _files(args) if f != "loop.png" or not note)
     print(f"wrote {out}/: {', '.join(files)}" + (f" ({note})" if note else ""))
     # --force: an earlier run's files of another kind (holdout.csv of a run
     # with --holdout, say) would sit beside these as if they belonged to them
@@ -349,6 +355,42 @@ def _fit_and_write(args, out) -> int:
             f"note: {', '.join(stale)} in {out}/ are an earlier run's, not this one's"
         )
     return 0
+
+
+def provenance(args) -> dict:
+    """What a result file needs to be traced back: the versions of diffimpact
+    and of the libraries behind the numbers, the command, the seed, the data
+    file's SHA-256, and the unit system of every number in the file."""
+    import hashlib
+    import sys
+    from importlib.metadata import PackageNotFoundError, version
+
+    def installed(name):
+        try:
+            return version(name)
+        except PackageNotFoundError:
+            return None
+
+    with open(args.data, "rb") as fh:
+        digest = hashlib.sha256(fh.read()).hexdigest()
+    return {
+        "versions": {
+            name: installed(name)
+            for name in (
+                "diffimpact",
+                "jax",
+                "jaxlib",
+                "diffrax",
+                "equinox",
+                "optimistix",
+                "blackjax",
+            )
+        },  # fmt: skip
+        "command": ["diffimpact", *sys.argv[1:]],
+        "seed": args.seed,
+        "data_sha256": digest,
+        "units": "SI: m, kg, s, Pa, N, rad (parameters, covariance, predictions)",
+    }
 
 
 def _files(args) -> tuple[str, ...]:
@@ -425,7 +467,11 @@ def _posterior(args, data, experiment, free, start, bounds, out, fitted) -> None
     post.save(os.path.join(out, "posterior.csv"), args.force)
     with open_new(os.path.join(out, "posterior.json"), args.force) as fh:
         json.dump(
-            {"data": os.path.abspath(args.data), **post.to_dict()},
+            {
+                "data": os.path.abspath(args.data),
+                **post.to_dict(),
+                "provenance": provenance(args),
+            },
             fh,
             indent=2,
             allow_nan=False,
@@ -605,8 +651,8 @@ def plot_loop(result, path, force=False) -> str:
             if "n_history" in str(err)
             else str(err)
         )
-        note = f"no force-deflection loop: {why}"
-        ax.text(0.5, 0.5, note, ha="center", wrap=True, transform=ax.transAxes)
+        plt.close(fig)
+        return f"no loop.png: {why}"
     label = ", ".join(f"{q} = {v:.4g}" for q, v in row.items())
     ax.set(
         xlabel="interference d [um]",
