@@ -120,7 +120,7 @@ def test_energy_never_rises():
 
     def outcome(theta, vx, vy, w):
         s = dataclasses.replace(
-            body, angle=theta, velocity_x=vx, velocity_y=vy, angular_velocity=w
+            body, orientation=theta, velocity_x=vx, velocity_y=vy, angular_velocity=w
         )
         r = di.simulate(s, di.JacksonGreen(), friction=di.Friction(0.3), throw=False)
         e = r.extras
@@ -173,7 +173,7 @@ def test_gradient_through_a_planar_body():
 def test_input_that_is_not_a_body_is_named(change, message):
     fields = dict(
         mass=0.3, inertia=1e-4, shape=S.Ellipse(0.05, 0.03), body=BAR, flat=FLAT,
-        angle=0.4, velocity_x=1.0, velocity_y=-2.0,
+        orientation=0.4, velocity_x=1.0, velocity_y=-2.0,
     )  # fmt: skip
     with pytest.raises((ValueError, TypeError), match=message):
         fields.update({k: v() if callable(v) else v for k, v in change.items()})

@@ -202,7 +202,7 @@ def _with_jacobian(states, flip=1.0):
     for i in range(len(states["orientation_deg"])):
         scene = dataclasses.replace(
             BODY,
-            angle=np.radians(states["orientation_deg"][i]),
+            orientation=np.radians(states["orientation_deg"][i]),
             velocity_x=states["velocity_x_m_s"][i],
             velocity_y=states["velocity_y_m_s"][i],
             angular_velocity=states["angular_velocity_before_rad_s"][i],

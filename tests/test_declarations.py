@@ -13,7 +13,7 @@ from diffimpact._cli._main import main
 S = di.scenes
 STEEL = di.Material(200e9, 0.3, np.inf, 7850.0)
 FLAT = di.Material(205e9, 0.29, 400e6, 7850.0)
-STATE = dict(angle=0.3, velocity_x=0.2, velocity_y=-2.0)
+STATE = dict(orientation=0.3, velocity_x=0.2, velocity_y=-2.0)
 SHAPES = {
     "disk": S.Disk(0.01),
     "ellipse": S.Ellipse(0.03, 0.015),

@@ -212,7 +212,7 @@ def rigid_at(angle):
 
 
 def flexible_at(angle):
-    return flexible(2, 2, angle=angle)
+    return flexible(2, 2, tilt=angle)
 
 
 def test_impulse_criterion_on_the_rigid_bar():
