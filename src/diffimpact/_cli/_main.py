@@ -126,8 +126,9 @@ def demo(args) -> int:
         r = di.simulate(sc, di.JacksonGreen(), method, throw=False, _guarded=False)
         return r.cor_newton
 
-    # Through the quadrature path: tracing the smooth solve's reverse pass
-    # alone takes ~4 s, every run (the disk cache skips compiling, not tracing).
+    # Through the quadrature path: the smooth solve's reverse pass would be
+    # traced again on every run, seconds each time (the disk cache skips
+    # compiling, not tracing; benchmarks/RESULTS.md, "Time to first result").
     g = jax.grad(cor)(355e6, "quadrature")
     if not math.isfinite(float(g)):
         raise RuntimeError("the demo's gradient is not finite")

@@ -189,8 +189,9 @@ def fit(
 
 
 # Rows sorted by their step counts are solved in chunks of this size on a CPU:
-# 2,000 planar impacts of bench_body.py took 9.4 s in sorted chunks of 8, 7.1 s
-# of 32 and 7.4 s of 128 (unsorted chunks of 8: 12.1 s).
+# a chunk runs as long as its longest row, so sorted rows waste few steps, and
+# 32 was the fastest of the sizes measured on 2,000 planar impacts (8, 32,
+# 128; benchmarks/RESULTS.md, "Planar bodies from measured states").
 _SORTED_CHUNK = 32
 # Warm start: rows per free parameter, the least number of rows, and how many
 # times more rows the file must hold for a subsample to pay.  Its optimum only
@@ -198,16 +199,16 @@ _SORTED_CHUNK = 32
 # iterations (`_lsq._REACH`, 2 %), and does (a subsample's statistical spread
 # is ~sqrt(n / rows) standard errors).  128 of 2,000 noisy planar impacts
 # (Jackson-Green, mu and S_y) landed 1.6e-4 and 2.2e-4 from every row's
-# optimum (unconstrained parameters), every row's iterations took the same
-# three evaluations as from 256 rows, and the warm start 11 s instead of 23 s.
+# optimum (unconstrained parameters), and every row's iterations took the same
+# three evaluations as from 256 rows, for half the warm start's cost
+# (benchmarks/RESULTS.md, "2,000 noisy impacts of an ellipse").
 _WARM_PER_PARAMETER, _WARM_MIN, _WARM_FACTOR = 64, 128, 4
 # The warm start stops within this (relative) of its own optimum: about the
 # spread of a subsample's estimates around every row's optimum (there 4
 # standard errors: 2e-3 of mu, 3e-3 of S_y), which the iterations on every row
 # correct anyway, and far above the rounding of final iterations.  At 1e-4
-# the warm start on 256 rows of that fit took one evaluation more (7 s of its
-# 29 s) to move 1.5e-3, and the iterations on every row the same steps after
-# it.
+# the warm start of that fit takes one evaluation more to move 1.5e-3, and the
+# iterations on every row take the same steps after it.
 _WARM_TOL = 1e-3
 # The iterations also stop at a point that its Gauss-Newton step and the
 # contraction of the last two steps place within this many standard errors
@@ -217,8 +218,8 @@ _WARM_TOL = 1e-3
 # steps on every row were 7.7, 0.055 and 0.0085 standard errors: the fit
 # stops at the second point (contraction 0.007), 0.055 standard errors from
 # the optimum.  The
-# tolerances in the parameters alone kept that fit (a centre-of-mass offset
-# near 0) iterating for five more evaluations of every row (53 s) at a few
+# tolerances in the parameters alone would keep that fit (a centre-of-mass
+# offset near 0) iterating for five more evaluations of every row at a few
 # 1e-3 standard errors a step.
 _WITHIN = 0.1
 _JACOBIANS = ("auto", "forward-mode", "differences")
@@ -321,8 +322,8 @@ def _fit_least_squares(
             if warm_converged:
                 # From the subsample's optimum, within its statistical spread
                 # of all rows' optimum, full Gauss-Newton steps: LM's initial
-                # damping made the first step only 70 % of one (an evaluation
-                # of all rows more, ~36 s on 2,000 planar impacts).  A step
+                # damping makes the first step only 70 % of one (an evaluation
+                # of all rows more, the costliest part of a fit).  A step
                 # that raises the cost hands back to `solver` from the last
                 # point.
                 u, more, converged, final, rose = least_squares(

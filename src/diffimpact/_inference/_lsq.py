@@ -10,8 +10,8 @@ and the costly part, thousands of ODE solves with their forward sensitivities,
 runs where it is cheapest:
 
 - in blocks, one per core, each in its own thread: XLA runs one program on
-  one core of a CPU, and two threads predicted 512 planar impacts in 2.7 s
-  against 4.2 s for one program (2-core machine);
+  one core of a CPU, so one program per core keeps every core busy
+  (benchmarks/RESULTS.md, "Planar bodies from measured states");
 - with the rows of a block sorted by the steps their solves took at the start
   values, so that the impacts of a chunk take similar numbers of steps (a
   vmapped solve runs as many as the longest of its batch);
@@ -41,9 +41,9 @@ from ._row_blocks import RowBlocks, known_fn
 _STALL = 4
 # ... in a warm start, whose Jacobians only steer it towards the optimum of all
 # rows (whose Jacobian is recomputed there): a wider limit, which still catches
-# the divergences seen (1,600 times and 1e45), and spares the central
+# the divergences measured (1,600 times and 1e45), and spares the central
 # differences of the rows whose derivatives only spread wider far from the
-# optimum (78 of 256 planar impacts at mu = 0.4: 5 s).
+# optimum (78 of 256 planar impacts at mu = 0.4).
 _WARM_DIVERGED = 100.0
 # A Gauss-Newton trial point whose cost exceeds the last point's by more than
 # this (relative) has overshot: far above the rounding of a cost at the
@@ -71,9 +71,10 @@ def _settled(sizes) -> bool:
     Why: on noisy data Gauss-Newton converges only linearly (the residuals'
     curvature, which it leaves out, does not vanish at the optimum); 2,000
     planar impacts contracted by 0.06 per step, so the step that first falls
-    below the tolerance comes one evaluation of every row (~36 s) after the
-    one that already lands within it.  Two ratios, not one: the first step
-    from a warm start contracts by more (0.012 there) than the steps after."""
+    below the tolerance comes one evaluation of every row (the costliest
+    part of a fit) after the one that already lands within it.  Two ratios,
+    not one: the first step from a warm start contracts by more (0.012
+    there) than the steps after."""
     if len(sizes) < 3 or min(sizes[-3:-1]) <= 0.0:
         return False
     theta = max(sizes[-1] / sizes[-2], sizes[-2] / sizes[-3])
@@ -93,10 +94,11 @@ def _standard_errors_left(jac, r, newton, mask, absolute=False) -> float:
     is near 0 (a centre-of-mass offset, with the identity transform) is
     determined only to ``atol``, and one the data barely determine (the
     Gauss-Newton step along a weak combination stays long in the parameters
-    while it changes the cost by nothing) to far less.  Measured on 2,000
-    noisy planar impacts with mu, S_y, com_x and com_y free (truth com_y = 0,
-    standard error 3.3e-6 m): five evaluations of every row (53 s) after the
-    cost had stopped changing, each step a few 1e-3 standard errors."""
+    while it changes the cost by nothing) to far less.  On 2,000 noisy
+    planar impacts with mu, S_y, com_x and com_y free (truth com_y = 0,
+    standard error 3.3e-6 m), the tests in the parameters alone keep
+    iterating for five evaluations of every row after the cost has stopped
+    changing, each step a few 1e-3 standard errors."""
     dof = int(np.sum(mask)) - newton.size
     if dof <= 0:
         return math.inf

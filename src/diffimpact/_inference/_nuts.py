@@ -16,8 +16,8 @@ from ._residuals import _FAILED_RESIDUAL, _residuals
 # The sampler's coordinate is kept within |u| <= 12 (a factor e^12 = 1.6e5
 # either side of the start value of a positive parameter, 12 prior sigmas of
 # the default prior): an early warm-up trajectory can fly far out, and there a
-# solve's derivatives can fail (an event whose time derivative vanishes was
-# seen at S_y = 18 kPa and mu = 2e-8 in the ball-prism model).  Beyond the box
+# solve's derivatives can fail (an event whose time derivative vanishes, as
+# at S_y = 18 kPa and mu = 2e-8 in the ball-prism model).  Beyond the box
 # the density drops past the divergence threshold and the model is not
 # evaluated.
 U_MAX = 12.0

@@ -61,10 +61,11 @@ def check_rows(
         scenes = [row_scene(i) for i in range(n)]
         check_jacobian_rows(scenes, checks, path, lines)
         return
-    # Building each row's scene runs its checks op by op: 2,000 planar bodies
-    # took 17 s (8 ms a row).  The same checks, vmapped over the rows and
-    # compiled once (about a second), find the failing rows; each of those is
-    # then rebuilt eagerly, which raises the scene's own message.
+    # Building each row's scene runs its checks op by op, milliseconds a row.
+    # The same checks, vmapped over the rows and compiled once, find the
+    # failing rows at a fraction of that (benchmarks/RESULTS.md, "2,000 noisy
+    # impacts of an ellipse"); each of those is then rebuilt eagerly, which
+    # raises the scene's own message.
     suspects = None
     if n > _EAGER_ROWS:
         suspects = _failing_rows(experiment, inputs)

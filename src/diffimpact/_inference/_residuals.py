@@ -25,9 +25,9 @@ def map_rows(fn, rows, chunk_size: int | None, active=None):
     (``vmap``) when `chunk_size` is None, else in chunks one after another.
     A vmapped ODE solve runs as many steps as the longest impact of its
     batch, and impacts from measured states differ (one ellipse drop in 2,000
-    took 2,236 steps, the median 207): on a CPU, chunks of 8 predicted 2,000
-    of them in 12.1 s against 23.9 s all at once, and chunks of 32 of rows
-    sorted by their step counts in 7.1 s (benchmarks/bench_body.py).
+    took 2,236 steps, the median 207): on a CPU, small chunks of rows sorted
+    by their step counts waste the fewest steps, and were the fastest
+    measured (benchmarks/RESULTS.md, "Planar bodies from measured states").
 
     `active` (a boolean per row, with a chunk size): a chunk none of whose
     rows is active is not solved (its outputs are zeros), so that `fit` can

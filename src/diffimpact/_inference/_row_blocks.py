@@ -229,14 +229,14 @@ class RowBlocks:
         thread before the first `evaluate`, which then finds it compiled.
         Why: XLA compiles on one core, so started beside the first
         predictions (whose own compilation leaves the other core idle) the
-        costliest compilation of a fit, ~17 s for planar impacts, overlaps
-        with work that has to be done anyway.  Not a daemon thread: one
-        still inside XLA when the interpreter exits aborts the process
-        ("terminate called ...", seen in one exit of three), so a fit that
-        stops before its first evaluation (a row refused at the start
-        values) joins it first, a wait of at most the compilation.  An error
-        in it is kept in ``thread.error``, not printed: the first evaluation
-        compiles the same program and raises it where the caller sees it."""
+        costliest compilation of a fit overlaps with work that has to be
+        done anyway.  Not a daemon thread: one still inside XLA when the
+        interpreter exits can abort the process ("terminate called ..."),
+        so a fit that stops before its first evaluation (a row refused at the
+        start values) joins it first, a wait of at most the compilation.  An
+        error in it is kept in ``thread.error``, not printed: the first
+        evaluation compiles the same program and raises it where the caller
+        sees it."""
         block = self.blocks[0]
         idle = eqx.tree_at(lambda b: b.mask, block, jnp.zeros_like(block.mask))
 
@@ -270,10 +270,10 @@ class RowBlocks:
         the ``p + 1`` points of every block a task of the pool.  A row
         predicted at ``u`` but failing at a shifted point gets forward mode.
 
-        Why differences: a tangent of a solve costs more than the solve (its
-        Jacobian for 4 parameters took 6.7 times a prediction of 2,000 planar
-        impacts, forward differences take 5), and no program of its own has
-        to be compiled."""
+        Why differences: a tangent of a solve costs more than the solve, so
+        the ``p + 1`` predictions cost less than forward mode's Jacobian
+        (benchmarks/RESULTS.md, "2,000 noisy impacts of an ellipse"), and no
+        program of its own has to be compiled."""
         if self.jacobian == "forward-mode":
             return self.map(_block_values_and_jacobian, u)
         u = np.asarray(u, float)
@@ -369,8 +369,8 @@ class RowBlocks:
         standard errors and the standard errors by 0.1 %; without the
         correction, 1.7e-3 and 0.3 % (benchmarks/RESULTS.md).  The correction
         only for long steps: on short ones ``dev`` is the solves' rounding,
-        which ``dev / |du|`` carried into the Jacobian (the iterations stopped
-        contracting)."""
+        which ``dev / |du|`` would carry into the Jacobian (the iterations
+        then stop contracting)."""
         du = np.asarray(u, float) - np.asarray(base_u, float)
         pred, codes, _ = self.predictions(u)
         r = self._weighted(pred, codes)

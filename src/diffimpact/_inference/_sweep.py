@@ -44,13 +44,12 @@ from .._solve._simulate import simulate
 from ..scenes import NormalImpact
 from ._progress import Progress
 
-# Rows per device in a chunk by default.  On CPU, small chunks are faster:
-# the quadrature's per-row temporaries (32 x 16 Gauss nodes, ~25 kB a row)
-# then stay in cache.  Measured with benchmarks/bench_sweep.py (JG,
-# quadrature, one CPU device, 2 cores shared with other jobs, so +-30 %):
-# chunks of 512 rows ran 25,000 impacts/s, 1024 15,600/s, 16384 12,800/s,
-# 65536 9,800/s at 3.3 GB peak RSS.  On accelerators larger batches keep the
-# device busy; 65536 rows (~1.6 GB a chunk) is a guess, not measured.
+# Rows per device in a chunk by default.  On CPU a small chunk keeps the
+# quadrature's per-row temporaries (32 x 16 Gauss nodes, ~25 kB a row) in
+# cache and bounds the peak memory; larger chunks gain little or no
+# throughput for more memory (benchmarks/RESULTS.md, "Sweeps").  On
+# accelerators larger batches keep the device busy; 65536 rows (~1.6 GB a
+# chunk) is a guess, not measured.
 ROWS_PER_DEVICE = {"cpu": 512}
 ROWS_PER_DEVICE_ACCELERATOR = 65536
 
