@@ -353,7 +353,7 @@ def test_flight_to_the_contact_is_exact(t0):
     earlier = _earlier(ELLIPSE, t0)
     assert abs(float(earlier.flight_time()) / t0 - 1) < 1e-12
     there = earlier.at_first_contact()
-    for f in ("angle", "velocity_x", "velocity_y"):
+    for f in ("orientation", "velocity_x", "velocity_y"):
         assert abs(float(getattr(there, f)) - float(getattr(ELLIPSE, f))) < 1e-12
     law, friction = di.JacksonGreen(), di.Friction(0.25)
     a = di.simulate(ELLIPSE, law, friction=friction)

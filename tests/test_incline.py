@@ -152,8 +152,8 @@ def test_friction_gradient_dissipative_laws(law, mu):
 @pytest.mark.parametrize(
     "make, match",
     [
-        (lambda: scene(90.0), "angle"),
-        (lambda: scene(-1.0), "angle"),
+        (lambda: scene(90.0), "incline"),
+        (lambda: scene(-1.0), "incline"),
         (lambda: scene(30.0, height=0.0), "no contact"),
         (lambda: di.Friction(-0.1), "Friction.mu"),
         (lambda: di.Friction(0.2, mu_v=-1.0), "Friction.mu_v"),
