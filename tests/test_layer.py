@@ -119,7 +119,8 @@ _JAXPR = """
 import re, jax, diffimpact as di
 ball = di.Material(208e9, 0.3)
 def f(v):
-    s = di.scenes.NormalImpact(4.11e-3, 5e-3, ball, di.Material(205e9, 0.29, 355e6), v)
+    plate = di.Material(205e9, 0.29, 355e6)
+    s = di.scenes.NormalImpact(4.11e-3, 5e-3, ball, plate, velocity=v)
     return di.simulate(s, di.JacksonGreen(), "{method}").cor_newton
 text = str(jax.make_jaxpr(f)(1.0))
 print(sorted(set(re.findall(r"(\\w*callback\\w*)\\[", text))))

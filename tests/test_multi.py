@@ -802,7 +802,7 @@ def test_rejects_approach_speed_laws_and_wrong_scenes():
         (lambda: SliderCrank(crank_angle=float("inf")), "SliderCrank.crank_angle"),
         (lambda: SliderCrank(rod_inertia=-1.0), "SliderCrank.rod_inertia"),
         (lambda: SliderCrank(gravity=-9.81), "SliderCrank.gravity"),
-        (lambda: BouncingBar(MASS, BAR, PLATE, height=HEIGHT, tilt=-0.1), "angle"),
+        (lambda: BouncingBar(MASS, BAR, PLATE, height=HEIGHT, tilt=-0.1), "tilt"),
         (lambda: BouncingBar(-MASS, BAR, PLATE, height=HEIGHT), "BouncingBar.mass"),
         (
             lambda: BouncingBar(MASS, BAR, PLATE, height=float("nan")),

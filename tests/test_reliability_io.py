@@ -188,7 +188,7 @@ import math, jax
 import diffimpact as di
 ball = di.Material(208e9, 0.3); plate = di.Material(205e9, 0.29, 355e6)
 r = 5e-3; m = 4 / 3 * math.pi * r**3 * 7850
-s = di.scenes.NormalImpact(m, r, ball, plate, 1.0)
+s = di.scenes.NormalImpact(m, r, ball, plate, velocity=1.0)
 out = [float(di.simulate(s, di.JacksonGreen(), k).cor_newton)
        for k in ("smooth", "quadrature")]
 print(di.simulate(s, di.JacksonGreen()).cor_newton.dtype, *out)
