@@ -138,3 +138,32 @@ def test_the_nuts_bar_counts_warm_up_and_sampling_divergences_apart():
     assert _divergences(records, 20, 40) == (
         "sampling, 1 divergent (3 in warm-up, not kept)"
     )
+
+
+def test_a_compilation_shows_a_running_clock_that_stops():
+    """A fit's first seconds are compilation with no step to show: the
+    status line's clock keeps running (redrawn every 0.5 s), stops at the
+    first step, and stops on an error too (no clock writing over it)."""
+    import io
+    import time
+
+    from diffimpact._inference._progress import Progress
+
+    stream = io.StringIO()
+    bar = Progress(10, "lm", stream=stream)
+    with bar.live("compiling..."):
+        time.sleep(1.3)
+        bar.update(1, "cost 1")
+        time.sleep(0.7)
+    bar.close()
+    text = stream.getvalue()
+    assert text.count("compiling...") >= 3  # drawn at 0, 0.5 and 1.0 s
+    assert text.rindex("compiling...") < text.index("step 1/10")
+    stream = io.StringIO()
+    bar = Progress(10, "lm", stream=stream)
+    with pytest.raises(RuntimeError, match="boom"):
+        with bar.live("compiling..."):
+            raise RuntimeError("boom")
+    shown = stream.getvalue()
+    time.sleep(0.7)
+    assert stream.getvalue() == shown

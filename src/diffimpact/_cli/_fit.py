@@ -16,6 +16,7 @@ import csv
 import dataclasses
 import json
 import os
+import sys
 
 from .._io._data import parse_number
 from ._files import integer, number, open_new, writable_folder
@@ -333,6 +334,8 @@ def _fit_and_write(args, out) -> int:
             allow_nan=False,  # strict JSON: to_dict writes null for inf
         )
     write_residuals(result, os.path.join(out, "residuals.csv"), args.force)
+    if not args.no_progress:  # a few seconds of matplotlib and a solve
+        print("writing fit.png and loop.png...", file=sys.stderr, flush=True)
     plot_fit(result, os.path.join(out, "fit.png"), args.force)
     note = plot_loop(result, os.path.join(out, "loop.png"), args.force)
     if args.posterior:

@@ -20,6 +20,7 @@ instead of a confident wrong answer.
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import math
 import time
@@ -150,25 +151,27 @@ def fit(
     forward = with_adjoint(problem, diffrax.ForwardMode())
     t0 = time.perf_counter()
     bar = Progress(max_steps, solver) if progress else None
-    if bar:  # from the first second: compiling takes most of a first run
-        bar.message(
-            f"compiling the model for {len(free)} parameter(s) and "
-            f"{int(problem.mask.sum())} measurements..."
-        )
-    # Every row must be predictable at the start: name the ones that are not
-    # before minutes of iterations.
-    if not gauss_newton:
-        check_predictions(forward, u0, data, "at the start values")
-        with derivatives_named(problem.experiment.settings):
-            u, steps, converged = minimise(
-                problem, u0, solver, max_steps, rtol, atol, learning_rate, bar
-            )
-        final = warm_info = None
-    else:
-        u, steps, converged, final, warm_info, forward = _fit_least_squares(
-            forward, u0, data, solver, max_steps, rtol, atol, bar, auto_chunks,
-            subsample, jacobian, absolute,
-        )  # fmt: skip
+    # from the first second, a clock running: compiling takes most of a
+    # first run
+    status = (
+        f"compiling the model for {len(free)} parameter(s) and "
+        f"{int(problem.mask.sum())} measurements..."
+    )
+    with bar.live(status) if bar else contextlib.nullcontext():
+        # Every row must be predictable at the start: name the ones that are not
+        # before minutes of iterations.
+        if not gauss_newton:
+            check_predictions(forward, u0, data, "at the start values")
+            with derivatives_named(problem.experiment.settings):
+                u, steps, converged = minimise(
+                    problem, u0, solver, max_steps, rtol, atol, learning_rate, bar
+                )
+            final = warm_info = None
+        else:
+            u, steps, converged, final, warm_info, forward = _fit_least_squares(
+                forward, u0, data, solver, max_steps, rtol, atol, bar, auto_chunks,
+                subsample, jacobian, absolute,
+            )  # fmt: skip
     if bar:
         bar.close()
         bar.message("covariance and residuals at the fitted values...", end="\n")

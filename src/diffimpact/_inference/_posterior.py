@@ -29,6 +29,7 @@ do not meet.
 
 from __future__ import annotations
 
+import contextlib
 import math
 import time
 import warnings
@@ -261,20 +262,20 @@ def posterior(
         num_warmup, num_samples, jax.random.key(seed), num_chains, chunk
     )
     records = []
-    if bar:
-        bar.message(f"compiling NUTS over {num_chains} chains...")
-    for k0 in range(0, steps.key.shape[1], chunk):
-        part = jax.tree.map(lambda a, k0=k0: a[:, k0 : k0 + chunk], steps)
-        try:
-            carry, rec = nuts_chunk(
-                model, carry, part, target_acceptance, max_tree_depth
-            )
-        except eqx.EquinoxRuntimeError:
-            raise _failed_derivative(names, carry, transforms, k0, chunk) from None
-        records.append(jax.tree.map(np.asarray, rec))
-        if bar:
-            done = min(k0 + chunk, num_warmup + num_samples)
-            bar.update(done, _divergences(records, num_warmup, done))
+    status = f"compiling NUTS over {num_chains} chains..."
+    with bar.live(status) if bar else contextlib.nullcontext():
+        for k0 in range(0, steps.key.shape[1], chunk):
+            part = jax.tree.map(lambda a, k0=k0: a[:, k0 : k0 + chunk], steps)
+            try:
+                carry, rec = nuts_chunk(
+                    model, carry, part, target_acceptance, max_tree_depth
+                )
+            except eqx.EquinoxRuntimeError:
+                raise _failed_derivative(names, carry, transforms, k0, chunk) from None
+            records.append(jax.tree.map(np.asarray, rec))
+            if bar:
+                done = min(k0 + chunk, num_warmup + num_samples)
+                bar.update(done, _divergences(records, num_warmup, done))
     if bar:
         bar.close()
         bar.message("diagnostics and posterior predictive...", end="\n")

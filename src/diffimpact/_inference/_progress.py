@@ -3,8 +3,10 @@ redrawn in place (no extra dependency)."""
 
 from __future__ import annotations
 
+import contextlib
 import math
 import sys
+import threading
 import time
 
 
@@ -24,11 +26,21 @@ class Progress:
         self.t0 = time.perf_counter()
         self.last = -math.inf
         self.shown = 0  # length of the line on screen, to overwrite it whole
+        self._ticker = None  # (thread, stop event) of a live status line
+        self._lock = threading.Lock()
 
     def _write(self, line: str, end: str = ""):
-        self.stream.write("\r" + line.ljust(self.shown) + end)
-        self.stream.flush()
-        self.shown = 0 if end else len(line)
+        with self._lock:
+            self.stream.write("\r" + line.ljust(self.shown) + end)
+            self.stream.flush()
+            self.shown = 0 if end else len(line)
+
+    def _stop_ticker(self):
+        if self._ticker is not None:
+            thread, stop = self._ticker
+            stop.set()
+            thread.join()
+            self._ticker = None
 
     def _bar(self, done) -> str:
         filled = int(round(self.width * min(done, self.total) / self.total))
@@ -40,6 +52,7 @@ class Progress:
         now = time.perf_counter()
         if not final and now - self.last < self.every:
             return
+        self._stop_ticker()
         self.last = now
         dt = now - self.t0
         if self.rate:
@@ -58,11 +71,42 @@ class Progress:
         self._write(line, "\n" if final else "")
 
     def close(self):
+        self._stop_ticker()
         self.stream.write("\n")  # keep the last bar on screen
         self.stream.flush()
         self.shown = 0
 
-    def message(self, text: str, end: str = ""):
-        """A status line (what is happening before or after the steps)."""
-        dt = time.perf_counter() - self.t0
-        self._write(f"{self.label}: {text} ({dt:.1f} s)", end)
+    def message(self, text: str, end: str = "", live: bool = False):
+        """A status line (what is happening before or after the steps).
+        ``live``: its clock keeps running, redrawn every half second until the
+        next line (a compilation shows no steps, and a frozen "(0.0 s)" looks
+        like a hang)."""
+        self._stop_ticker()
+
+        def draw():
+            dt = time.perf_counter() - self.t0
+            self._write(f"{self.label}: {text} ({dt:.1f} s)", end)
+
+        draw()
+        if live and not end:
+            stop = threading.Event()
+
+            def tick():
+                while not stop.wait(0.5):
+                    draw()
+
+            thread = threading.Thread(target=tick, daemon=True)
+            thread.start()
+            self._ticker = (thread, stop)
+
+    @contextlib.contextmanager
+    def live(self, text: str):
+        """A live status line (`message` with ``live``) for the span of a
+        ``with`` block: its clock stops at the first step shown, or when the
+        block ends, an exception included (a clock must not keep writing over
+        the error message)."""
+        self.message(text, live=True)
+        try:
+            yield self
+        finally:
+            self._stop_ticker()
