@@ -256,7 +256,9 @@ def test_gradients_with_respect_to_mu_and_shear_modulus(angle):
     g0 = float(ball(0.0).contact().shear_modulus)
 
     def e_t(mu, shear):
-        sc = _Ball(M, R, BALL, PLATE, math.radians(angle), H, shear=shear)
+        sc = _Ball(
+            M, R, BALL, PLATE, incline=math.radians(angle), height=H, shear=shear
+        )
         friction = di.Friction(mu, compliant=MD)
         return di.simulate(sc, di.Hertz(), friction=friction).extras["cor_tangential"]
 
