@@ -195,7 +195,7 @@ def test_the_same_error_under_jit():
         )  # fmt: skip
         return di.simulate(body, di.Hertz()).extras["angular_velocity_after"]
 
-    with pytest.raises(Exception, match="must approach the flat"):
+    with pytest.raises(jax.errors.JaxRuntimeError, match="must approach the flat"):
         jax.jit(spin)(1.0).block_until_ready()
 
 
@@ -245,7 +245,23 @@ def test_a_stuck_rod_solves(vx, gravity, mu, stick):
         x = float(ref.extras["tangential_velocity_after"])
         assert float(r.extras["velocity_x_after"]) == pytest.approx(x, rel=AGREE)
     else:
-        assert np.isfinite(float(r.extras["velocity_x_after"]))
+        # No gravity: the flat's impulse (m dv_x, m dv_y) lies in Coulomb's
+        # cone, and Hertz contact with friction only loses kinetic energy.
+        e = r.extras
+        p_t = m * (float(e["velocity_x_after"]) - vx)
+        p_n = m * (float(e["velocity_y_after"]) + 1.0)
+        assert p_n > 0 and abs(p_t) <= mu * p_n * (1 + 1e-9)
+        before = _kinetic(rod, vx, -1.0, 0.0)
+        after = _kinetic(
+            rod, e["velocity_x_after"], e["velocity_y_after"],
+            e["angular_velocity_after"],
+        )  # fmt: skip
+        assert float(after) <= before * (1 + 1e-9)
+        # the tip ends stuck or leaves sliding the way it came: it does not
+        # slide backwards (its tangential velocity keeps the sign of vx, or
+        # is 0 to the smooth sgn's width, slip_width 1e-4 of the 1 m/s
+        # approach; measured -4.8e-7 m/s when it sticks at mu 1)
+        assert float(e["tangential_velocity_contact_after"]) * vx >= -1e-4 * vx
 
 
 def test_a_triangle_on_its_corner_does_not_spin():
@@ -295,7 +311,9 @@ def test_a_flat_side_facing_the_flat_is_named(shape):
         with pytest.raises(ValueError, match="a flat side of the shape faces"):
             body(angle)
     after = jax.jit(lambda a: di.rigid_impact(body(a), 0.0, 1.0, "energetic"))
-    with pytest.raises(Exception, match="a flat side of the shape faces"):
+    with pytest.raises(
+        jax.errors.JaxRuntimeError, match="a flat side of the shape faces"
+    ):
         after(0.0)
     assert np.isfinite(float(after(1e-3)["angular_velocity_after"]))
 
@@ -440,7 +458,7 @@ def test_a_body_in_the_flat_is_named_under_jit_too():
         body = dataclasses.replace(ELLIPSE, height=height)
         return di.simulate(body, di.Hertz()).extras["angular_velocity_after"]
 
-    with pytest.raises(Exception, match="PlanarBody.height"):
+    with pytest.raises(jax.errors.JaxRuntimeError, match="PlanarBody.height"):
         spin(0.001)
     with pytest.raises(ValueError, match="velocity_y"):
         dataclasses.replace(ELLIPSE, height=0.1, velocity_y=0.5, gravity=0.0)
