@@ -115,6 +115,14 @@ def _release_compiled_programs():
 
 
 _EXTENDED = pathlib.Path(__file__).with_name("extended.txt")
+TIERS = pytest.StashKey[tuple]()
+
+
+def _tier(item) -> str:
+    for tier in ("extended", "stress"):
+        if item.get_closest_marker(tier):
+            return tier
+    return "default"
 
 
 @pytest.hookimpl(tryfirst=True)
@@ -135,6 +143,18 @@ def pytest_collection_modifyitems(config, items):
             found.add(item.nodeid)
     files = {item.nodeid.split("::")[0] for item in items}
     every = {f"tests/{p.name}" for p in _EXTENDED.parent.glob("test_*.py")}
+    # The tier of every collected test, before -m deselects any, for
+    # tests/test_docs_validation.py (which needs the whole suite's).
+    config.stash[TIERS] = (
+        every <= files,
+        {item.nodeid: _tier(item) for item in items},
+    )
+    if os.environ.get("DIFFIMPACT_TIERS_JSON"):
+        import json
+
+        pathlib.Path(os.environ["DIFFIMPACT_TIERS_JSON"]).write_text(
+            json.dumps(config.stash[TIERS][1])
+        )
     if every <= files:
         missing = listed - found
     elif config.getoption("lf", default=False) or any("::" in a for a in config.args):

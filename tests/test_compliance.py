@@ -104,13 +104,13 @@ def test_momentum_balance(stuck):
 
 def test_sliding_throughout_is_the_rigid_answer():
     """Where the contact slides throughout (45.6 deg, mu 0.12) the spring sits
-    at the Coulomb cap: the rebound is the rigid-contact one to 1e-8
-    (measured 1.5e-12)."""
+    at the Coulomb cap: the rebound is the rigid-contact one to 1e-11, the
+    solves' rtol (measured 1.5e-12)."""
     law, sc = di.Hertz(), ball(45.6)
     soft = di.simulate(sc, law, friction=di.Friction(0.12, compliant=True))
     rigid = di.simulate(sc, law, friction=di.Friction(0.12))
     for k in ("tangential_velocity_after", "angular_velocity_after"):
-        assert rel(soft.extras[k], rigid.extras[k]) < 1e-8, k
+        assert rel(soft.extras[k], rigid.extras[k]) < 1e-11, k
 
 
 def test_gradient_of_e_t_with_respect_to_mu():

@@ -186,8 +186,15 @@ def test_fit_a_declared_body_from_the_command_line(tmp_path, capsys):
 
 def test_the_ellipse_data_file_is_what_its_script_makes(tmp_path):
     """data/synthetic_ellipse_noise2pct.csv is reproducible from
-    data/make_synthetic.py (the predictions to 1e-12: they are the model's,
-    at the stated truth), and declares the script's body."""
+    data/make_synthetic.py (the predictions are the model's, at the stated
+    truth), and declares the script's body.  To 1e-9, not to rounding: the
+    planar ODE solve's last digits depend on the CPU's instruction set, and
+    its adaptive steps carry them on.  Measured: the file matches this
+    script to 1e-12 with AVX-512; with XLA_FLAGS=--xla_cpu_max_isa=AVX2,
+    166 of the 200 values of a column differ, by up to 2.9e-10 relative, and
+    a value near 0 by 3.7e-11 absolute (3.9e-9 relative): the bound is 1e-9
+    of each value or of the column's largest (the long tier failed the same
+    way on a fresh clone on another machine)."""
     import importlib.util
     import pathlib
 
@@ -200,7 +207,8 @@ def test_the_ellipse_data_file_is_what_its_script_makes(tmp_path):
     assert made.declarations == kept.declarations and made.n == 200
     for group in ("inputs", "outputs", "sigmas"):
         for q, v in getattr(kept, group).items():
-            np.testing.assert_allclose(getattr(made, group)[q], v, rtol=1e-12)
+            scale = 1e-9 * np.nanmax(np.abs(v))
+            np.testing.assert_allclose(getattr(made, group)[q], v, 1e-9, scale)
     body = di.Experiment.from_file(kept).scene
     assert float(body.flat.yield_strength) == ms.ELLIPSE_TRUTH["yield_strength"]
 

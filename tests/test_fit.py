@@ -77,13 +77,23 @@ def test_identifiability_warning_for_inseparable_parameters(tmp_path):
 
 
 def test_single_parameter_fit_reports_sensible_errors(tmp_path):
-    """Yield strength from exact normal-impact data (quadrature method)."""
+    """Yield strength from exact normal-impact data (quadrature method).
+    Measured 2.2e-14 from the truth (the bound is the stopping rule's: a
+    last step of up to 1e-6 may stop it).  Without sigma columns the errors
+    scale with the residuals, which exact data leave at rounding level
+    (1.1e-13): the standard error is the
+    covariance's root and tiny against the estimate (measured 4.4e-14 of
+    it), yet positive.  (Against an independent covariance:
+    tests/test_references.py.)"""
     exp = di.Experiment.default("normal_impact")
     p = _normal_file(tmp_path, exp, [0.2, 0.7, 1.5])
     r = di.fit(p, exp, free="yield_strength", start={"yield_strength": 250e6})
     assert abs(r.values[0] / 400e6 - 1.0) < 1e-8
     assert r.identifiable and r.converged and r.dof == 9 - 1
-    assert r.correlation.shape == (1, 1)
+    assert r.correlation.shape == (1, 1) and r.correlation[0, 0] == 1.0
+    assert not r.absolute_sigma
+    assert r.std_errors[0] == pytest.approx(math.sqrt(r.covariance[0, 0]), rel=1e-12)
+    assert 0.0 < r.std_errors[0] < 1e-12 * r.values[0]
 
 
 @pytest.mark.parametrize("solver, tol", [("lbfgs", 1e-6), ("adam", 2e-3)])

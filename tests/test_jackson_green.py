@@ -48,14 +48,17 @@ def test_grid_spans_all_regimes(reference):
 
 @pytest.mark.parametrize("method", ["smooth", "quadrature"])
 def test_agrees_with_events(method, reference):
+    """Measured on the grid, worst field: smooth 7.8e-8 (the COR; the smooth
+    switches' widths), quadrature 1.05e-10 (the dent)."""
+    tol = {"smooth": 5e-7, "quadrature": 1e-9}[method]
     res = _grid(method)
     for f in FIELDS:
         a, b = np.asarray(getattr(res, f)), np.asarray(getattr(reference, f))
         err = np.where(
             b != 0, np.abs(a - b) / np.where(b != 0, np.abs(b), 1), np.abs(a)
         )
-        assert err.max() < 1e-5, (f, err.max())
-    assert rel(res.compression_time, reference.compression_time).max() < 1e-5
+        assert err.max() < tol, (f, err.max())
+    assert rel(res.compression_time, reference.compression_time).max() < tol
 
 
 def test_below_yield_is_elastic(reference):

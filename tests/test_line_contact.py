@@ -124,7 +124,7 @@ def test_quadrature_refuses_and_bad_length_is_named():
     with pytest.raises(ValueError, match="LineContact.cor"):
         di.LineContact(0.01, cor=1.5)
     # Under jit the same message comes out.
-    with pytest.raises(Exception, match="LineContact.length"):
+    with pytest.raises(jax.errors.JaxRuntimeError, match="LineContact.length"):
         jax.jit(lambda x: di.simulate(scene(1.0), di.LineContact(x)).contact_time)(
             -0.01
         )

@@ -221,8 +221,11 @@ def test_checks_survive_transforms(name, transform):
     if transform.startswith("jit"):  # (eager vmap/grad of a solve is slow)
         good = np.asarray(f(jnp.asarray(base)))
         assert np.all(np.isfinite(good))
+    # An eager vmap raises equinox's runtime error; jit, a jitted vmap and
+    # grad raise the check's own ValueError.
+    expected = eqx.EquinoxRuntimeError if transform == "vmap" else ValueError
     for field, value, message, x in _bad_rows(name):
-        with pytest.raises(Exception, match=message.replace(".", r"\.")):
+        with pytest.raises(expected, match=message.replace(".", r"\.")):
             out = f(jnp.asarray(x))
             jax.block_until_ready(out)
             pytest.fail(f"{name}.{field} = {value} gave {out}")
@@ -249,7 +252,7 @@ def test_issue_examples_under_jit():
         ((0.29, 205e9, 0.5, -0.1), "Friction.mu"),
         ((0.29, 205e9, 0.5, math.nan), "Friction.mu"),
     ]:
-        with pytest.raises(Exception, match=message):
+        with pytest.raises(ValueError, match=message):
             jax.block_until_ready(cor(*args))
 
 
@@ -317,9 +320,11 @@ def test_mixed_batch_reports_per_row(method):
         assert float(d[i]) == pytest.approx(float(alone.max_deflection), rel=1e-12)
     if method == "quadrature":
         g = jax.jit(jax.vmap(jax.grad(lambda v: one(v)[0])))(speeds)
-        assert np.isfinite(g[0]) and np.isfinite(g[2])
+        for i in (0, 2):
+            alone = jax.grad(lambda v: one(v)[0])(speeds[i])
+            assert float(g[i]) == pytest.approx(float(alone), rel=1e-12)
     # The same batch with throw=True names the reason.
-    with pytest.raises(Exception, match="outside the contact model"):
+    with pytest.raises(eqx.EquinoxRuntimeError, match="outside the contact model"):
         jax.block_until_ready(
             jax.vmap(
                 lambda v: di.simulate(_soft_sphere(v), di.Hertz(), method).cor_newton
@@ -408,14 +413,14 @@ def test_span_checks_and_codes():
     with throw=False and a StepBudgetError with throw=True."""
     with pytest.raises(ValueError, match="BouncingBar.height"):
         _span(-0.1)
-    with pytest.raises(Exception, match="BouncingBar.height"):
+    with pytest.raises(eqx.EquinoxRuntimeError, match="BouncingBar.height"):
         jax.vmap(lambda h: _span(h).kinetic_energy)(jnp.array([0.05, -0.1]))
-    with pytest.raises(Exception, match="Friction.mu"):
+    with pytest.raises(ValueError, match="Friction.mu"):
         jax.grad(lambda mu: _span(0.05, mu).kinetic_energy)(-0.1)
     jitted = jax.jit(lambda h, mu: _span(h, mu).kinetic_energy)
     assert np.isfinite(float(jitted(0.05, 0.2)))
     for args, message in (((-0.1, 0.2), "BouncingBar.height"), ((0.05, -1.0), "mu")):
-        with pytest.raises(Exception, match=message):
+        with pytest.raises(ValueError, match=message):
             jax.block_until_ready(jitted(*args))
     with pytest.raises(di.StepBudgetError):
         _span(0.05, max_steps=8)
@@ -512,9 +517,9 @@ def test_every_constructor_eagerly_and_traced(build, good, bad, message):
         return jax.tree.leaves(guard(build(x)))[0]
 
     assert np.all(np.isfinite(jax.jit(checked)(good)))
-    with pytest.raises(Exception, match=pattern):
+    with pytest.raises(ValueError, match=pattern):
         jax.block_until_ready(jax.jit(checked)(bad))
-    with pytest.raises(Exception, match=pattern):
+    with pytest.raises(eqx.EquinoxRuntimeError, match=pattern):
         jax.vmap(checked)(jnp.array([good, bad]))
 
 
@@ -573,5 +578,5 @@ def test_failure_known_at_compile_time_still_raises_under_jit(method):
     soft = di.Material(1e6, 0.3)
     scene = di.scenes.NormalImpact(4.11e-3, 5e-3, soft, soft, velocity=10.0)  # too deep
     program = jax.jit(lambda: di.simulate(scene, di.Hertz(), method).max_deflection)
-    with pytest.raises(Exception, match="outside the contact model"):
+    with pytest.raises(jax.errors.JaxRuntimeError, match="outside the contact model"):
         jax.block_until_ready(program())

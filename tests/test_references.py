@@ -1,0 +1,128 @@
+"""The fit's uncertainty and the posterior against independent references.
+
+One problem with a closed form: an elastic Hertz impact of a steel sphere
+(R = 5 mm) whose contact time is ``t_c = 2.9432752 d_max / v0`` with
+``d_max = (5 m v0^2 / (4 K))^(2/5)`` and ``K = 4/3 E* sqrt(R)`` (H-1), three
+measured contact times with 6 % noise and their sigmas, and one free
+parameter, the flat's Young's modulus.  The references use that formula in
+numpy and scipy, not the library: scipy's ``curve_fit`` for the covariance,
+and the posterior on a fine grid of the same likelihood and prior.
+"""
+
+import math
+
+import numpy as np
+import pytest
+from conftest import MASS, RADIUS
+from scipy.optimize import curve_fit
+
+import diffimpact as di
+
+E_TRUE, NU, E_BODY = 210e9, 0.3, 210e9
+SPEEDS = np.array([0.3, 1.0, 3.0])
+NOISE = 0.06
+PRIOR = di.LogNormalPrior(150e9, 0.3)
+BETA = math.gamma(0.4) * math.gamma(0.5) / math.gamma(0.9)
+
+
+def contact_time(E, v):
+    """(H-1) in numpy: the contact time [s] of the elastic impact at speed v
+    on a flat of modulus E (the sphere's own modulus E_BODY)."""
+    e_star = 1.0 / ((1 - NU**2) / E_BODY + (1 - NU**2) / E)
+    k = 4.0 / 3.0 * e_star * math.sqrt(RADIUS)
+    d_max = (5.0 * MASS * v**2 / (4.0 * k)) ** 0.4
+    return 0.8 * BETA * d_max / v
+
+
+def experiment():
+    mat = di.Material(E_BODY, NU, math.inf, 7850.0)
+    return di.Experiment(
+        di.scenes.NormalImpact(MASS, RADIUS, mat, mat, 1.0), di.Hertz()
+    )
+
+
+@pytest.fixture(scope="module")
+def data(tmp_path_factory):
+    rng = np.random.default_rng(3)
+    t = contact_time(E_TRUE, SPEEDS) * 1e6
+    measured = t * (1 + NOISE * rng.standard_normal(t.size))
+    path = tmp_path_factory.mktemp("ref") / "hertz.csv"
+    di.write_experiments(
+        path,
+        {
+            "impact_velocity_m_s": SPEEDS,
+            "contact_time_us": measured,
+            "sigma_contact_time_us": NOISE * t,
+        },
+        scene="normal_impact",
+        provenance="SYNTHETIC, 6 % noise (tests/test_references.py)",
+    )
+    return path, measured * 1e-6, NOISE * t * 1e-6
+
+
+def test_fit_covariance_matches_curve_fit(data):
+    """The estimate, its standard error (sigmas from the file: absolute)
+    and the reported predictions and residuals, against scipy's curve_fit of
+    the closed form on the same measurements and sigmas.  The fit stops
+    where its next step is within 0.1 standard errors (`fit`'s docstring), so
+    the estimates agree to that: measured 0.010 SE apart (1.8e-3 relative);
+    the standard errors 0.30 % apart, the variances 0.61 % (the Jacobian
+    taken 0.01 SE away); the predictions at the reported value 1.6e-11 from
+    the closed form (the quadrature's own error), the residuals exactly."""
+    path, measured, sigma = data
+    r = di.fit(
+        path, experiment(), free=["youngs_modulus"], start={"youngs_modulus": 150e9}
+    )
+    assert r.converged and r.absolute_sigma
+
+    def model(v, e_gpa):  # GPa: curve_fit's steps assume a parameter ~1
+        return contact_time(e_gpa * 1e9, v)
+
+    popt, pcov = curve_fit(
+        model, SPEEDS, measured, p0=[150.0], sigma=sigma, absolute_sigma=True
+    )
+    assert abs(r.values[0] - popt[0] * 1e9) < 0.1 * r.std_errors[0]
+    assert r.std_errors[0] == pytest.approx(math.sqrt(pcov[0, 0]) * 1e9, rel=1e-2)
+    assert r.covariance[0, 0] == pytest.approx(pcov[0, 0] * 1e18, rel=2e-2)
+    # the reported predictions and residuals are those of a solve at the
+    # reported value
+    closed = contact_time(r.values[0], SPEEDS)
+    np.testing.assert_allclose(r.predicted[:, 0], closed, rtol=1e-10)
+    np.testing.assert_allclose(
+        r.residuals[:, 0], (r.predicted[:, 0] - measured) / sigma, rtol=1e-12
+    )
+    assert r.cost == pytest.approx(0.5 * np.sum(((closed - measured) / sigma) ** 2))
+
+
+def test_posterior_matches_a_grid_posterior(data):
+    """``posterior`` (NUTS, 2 chains of 1,000 draws) against the posterior
+    of the same prior and Gaussian likelihood on a grid of 200,001 points in
+    log E: mean, sd and the 5 %, 50 % and 95 % quantiles.  The data and the
+    prior pull apart (the prior median 150 GPa, the data near 200 GPa, each
+    ~15 % wide), so the posterior is neither of them nor Gaussian.  Measured
+    (seed 0): mean 0.02 sd off, sd 0.1 % off, quantiles within 0.02 sd; the
+    bounds allow the Monte-Carlo error of ~1,000 effective draws (a mean's is
+    0.03 sd, a 5 % quantile's ~0.07 sd)."""
+    path, measured, sigma = data
+    r = di.posterior(
+        path, experiment(), free=["youngs_modulus"],
+        priors={"youngs_modulus": PRIOR}, num_samples=1000, num_warmup=300,
+        num_chains=2, seed=0,
+    )  # fmt: skip
+    assert r.converged and np.all(r.rhat < 1.01)
+    E = np.exp(np.linspace(math.log(20e9), math.log(2000e9), 200_001))
+    log_p = -0.5 * (np.log(E / PRIOR.median) / PRIOR.sigma) ** 2 - np.log(E)
+    for v, m, s in zip(SPEEDS, measured, sigma, strict=True):
+        log_p += -0.5 * ((contact_time(E, v) - m) / s) ** 2
+    w = np.exp(log_p - log_p.max()) * E  # dE = E d(log E) on this grid
+    w /= w.sum()
+    mean = float(np.sum(w * E))
+    sd = math.sqrt(float(np.sum(w * (E - mean) ** 2)))
+    cdf = np.cumsum(w)
+    grid_q = np.array([E[np.searchsorted(cdf, a)] for a in (0.05, 0.5, 0.95)])
+    draws = np.asarray(r.samples).ravel()
+    assert abs(draws.mean() - mean) < 0.1 * sd
+    assert abs(draws.std() - sd) < 0.1 * sd
+    assert np.all(np.abs(np.quantile(draws, [0.05, 0.5, 0.95]) - grid_q) < 0.2 * sd)
+    # the posterior is the compromise: between the prior median and the data
+    assert PRIOR.median < mean < E_TRUE * 1.05
