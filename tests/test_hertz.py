@@ -30,7 +30,7 @@ def test_tc_constant_matches_physics_md():
     printed constants are the gamma-function value to those digits."""
     assert TC_CONST == pytest.approx(2.9432752, abs=1e-7)
     mat = steel(jnp.inf)
-    sc = di.scenes.NormalImpact(MASS, RADIUS, mat, mat, 0.7)
+    sc = di.scenes.NormalImpact(MASS, RADIUS, mat, mat, velocity=0.7)
     r = di.simulate(sc, di.Hertz(), "quadrature")
     k = float(di.contact_properties(mat, mat, RADIUS).hertz_stiffness)
     d_max = float(r.max_deflection)

@@ -37,7 +37,7 @@ def contact_time(E, v):
 def experiment():
     mat = di.Material(E_BODY, NU, math.inf, 7850.0)
     return di.Experiment(
-        di.scenes.NormalImpact(MASS, RADIUS, mat, mat, 1.0), di.Hertz()
+        di.scenes.NormalImpact(MASS, RADIUS, mat, mat, velocity=1.0), di.Hertz()
     )
 
 
