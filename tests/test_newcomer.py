@@ -93,13 +93,13 @@ _B, _F = di.Material(208e9, 0.3), di.Material(205e9, 0.29, 355e6)
 @pytest.mark.parametrize(
     "make, new",
     [
-        (lambda: di.scenes.SphereOnIncline(4e-3, 5e-3, _B, _F, incline=0.3, height=0.1),
+        (lambda: di.scenes.SphereOnIncline(4e-3, 5e-3, _B, _F, angle=0.3, height=0.1),
          "incline"),
-        (lambda: di.scenes.FreeBar(0.05, _B, _F, tilt=0.3, height=0.1), "tilt"),
-        (lambda: di.scenes.FlexibleBar(0.05, _B, _F, tilt=0.3, height=0.1), "tilt"),
-        (lambda: di.scenes.BouncingBar(0.05, _B, _F, tilt=0.3, height=0.1), "tilt"),
+        (lambda: di.scenes.FreeBar(0.05, _B, _F, angle=0.3, height=0.1), "tilt"),
+        (lambda: di.scenes.FlexibleBar(0.05, _B, _F, angle=0.3, height=0.1), "tilt"),
+        (lambda: di.scenes.BouncingBar(0.05, _B, _F, angle=0.3, height=0.1), "tilt"),
         (lambda: di.scenes.PlanarBody(0.05, 1e-5, di.scenes.Disk(0.01), _B, _F,
-                                      orientation=0.3, velocity_x=0.0, velocity_y=-1.0),
+                                      angle=0.3, velocity_x=0.0, velocity_y=-1.0),
          "orientation"),
     ],
 )  # fmt: skip
@@ -115,11 +115,11 @@ def test_the_state_is_keyword_only():
     ``*``.  A state given by position is refused naming the keywords, not
     silently taken for the next field (a FreeBar's height for its length)."""
     with pytest.raises(TypeError, match="velocity, gravity are keyword-only"):
-        di.scenes.NormalImpact(4e-3, 5e-3, _B, _F, velocity=1.0)
+        di.scenes.NormalImpact(4e-3, 5e-3, _B, _F, 1.0)
     with pytest.raises(TypeError, match="height, length, diameter, tilt"):
-        di.scenes.FreeBar(0.05, _B, _F, height=0.3)
+        di.scenes.FreeBar(0.05, _B, _F, 0.3)
     with pytest.raises(TypeError, match="impact_angle, release_angle"):
-        di.scenes.RotatingLink(0.05, 0.1, 0.01, _B, _F, impact_angle=0.5)
+        di.scenes.RotatingLink(0.05, 0.1, 0.01, _B, _F, 0.5)
     scene = di.scenes.SphereOnIncline(4e-3, 5e-3, _B, _F, incline=0.3, height=0.1)
     assert float(scene.incline) == 0.3 and float(scene.height) == 0.1
 
