@@ -9,7 +9,12 @@ import pathlib
 PACKAGE = pathlib.Path(__file__).parent.parent / "src" / "diffimpact"
 # The command line imports the library lazily so that `diffimpact --help`
 # answers at once; these are the only function-level package imports.
-LAZY = {"diffimpact._cli._main", "diffimpact._cli._fit", "diffimpact._cli._sweep"}
+LAZY = {
+    "diffimpact._cli._main",
+    "diffimpact._cli._fit",
+    "diffimpact._cli._outputs",
+    "diffimpact._cli._sweep",
+}
 # The families and their levels (lower never imports higher).  The flat
 # modules of the package (checks, materials, results, smooth functions) are
 # the ground floor; the package's __init__ and __main__ sit above all.
