@@ -73,7 +73,7 @@ _RESTITUTION_SEGMENTS = 3
 # the Gauss nodes of that form's travel times (gravity's share of the slip is
 # ~g t_c / v0 ~ 1e-3 of it, so the coarse root is close enough for the two
 # full Newton steps that follow to reach rounding).
-_ROOT_ITERATIONS = 32
+_ROOT_ITERATIONS = 12
 _COARSE = 6
 # A segment whose effective normal compliance k is below this fraction of
 # ``a`` does not push the bodies apart (Painleve's paradox while sliding, a
@@ -148,9 +148,11 @@ def _first_root(fn, params, lo, hi):
         return lo, hi, jnp.where(inside, nxt, 0.5 * (lo + hi))
 
     lo0, hi0 = frozen[1], frozen[2]
-    lo_, hi_, x = jax.lax.fori_loop(
-        0, _ROOT_ITERATIONS, body, (lo0, hi0, 0.5 * (lo0 + hi0))
-    )
+    # Start at the secant point of the bracket.
+    f_lo, f_hi = fn(lo0, frozen[0], True), fn(hi0, frozen[0], True)
+    share = jnp.clip(f_lo / jnp.where(f_lo > f_hi, f_lo - f_hi, 1.0), 0.05, 0.95)
+    x0 = lo0 + share * (hi0 - lo0)
+    lo_, hi_, x = jax.lax.fori_loop(0, _ROOT_ITERATIONS, body, (lo0, hi0, x0))
     _, nxt, ok = newton(x, frozen[0], False)
     x = jnp.where(ok & (nxt > lo_) & (nxt < hi_), nxt, x)
     f, nxt, ok = newton(x, params, False)
@@ -429,13 +431,20 @@ def solve_contact_space(scene, law, friction, settings) -> ImpactResult:
         wedged=false,
         never=false,
     )
-    for _ in range(_LOADING_SEGMENTS):
-        st = _loading_segment(cs, law_, st, friction_on)
+    # One traced body per branch (scan), not one per segment: compile time.
+    st, _ = jax.lax.scan(
+        lambda st, _: (_loading_segment(cs, law_, st, friction_on), None),
+        st,
+        length=_LOADING_SEGMENTS,
+    )
     d_m = jnp.where(st["turned"], st["d"], jnp.full_like(v0, 1e-6))  # benign
     branch = Restitution(law_, d_m)
     st["x"] = zero
-    for _ in range(_RESTITUTION_SEGMENTS):
-        st = _restitution_segment(cs, law_, branch, st, friction_on)
+    st, _ = jax.lax.scan(
+        lambda st, _: (_restitution_segment(cs, law_, branch, st, friction_on), None),
+        st,
+        length=_RESTITUTION_SEGMENTS,
+    )
 
     t_end = st["t"]
     q_dot = q_dot0 + inv_mass * (gravity * t_end - j_n * st["pn"] + j_t * st["pt"])
@@ -473,8 +482,11 @@ def solve_contact_space(scene, law, friction, settings) -> ImpactResult:
     }
     if friction_on:
         extras.update(
+            # The model's own slip (frozen geometry): a contact stuck to the end
+            # has none, as in the ODE, where the slip read through the
+            # Jacobian at separation would show the neglected rotation.
             slip_extras(
-                st["min_slip"] / v0, sigma_ref * v_t / v0, v_t0, friction, settings
+                st["min_slip"] / v0, sigma_ref * st["vt"] / v0, v_t0, friction, settings
             )
         )
     unresolved = ~st["separated"] & ~st["failed"]
