@@ -73,7 +73,7 @@ _RESTITUTION_SEGMENTS = 3
 # the Gauss nodes of that form's travel times (gravity's share of the slip is
 # ~g t_c / v0 ~ 1e-3 of it, so the coarse root is close enough for the two
 # full Newton steps that follow to reach rounding).
-_ROOT_ITERATIONS = 12
+_ROOT_ITERATIONS = 24
 _COARSE = 6
 # A segment whose effective normal compliance k is below this fraction of
 # ``a`` does not push the bodies apart (Painleve's paradox while sliding, a
