@@ -75,6 +75,9 @@ _RESTITUTION_SEGMENTS = 3
 # full Newton steps that follow to reach rounding).
 _ROOT_ITERATIONS = 24
 _COARSE = 6
+# Normal speed (over the segment's initial one) below which a slip root
+# counts as the turning point.
+_AT_TURN = 1e-7
 # A segment whose effective normal compliance k is below this fraction of
 # ``a`` does not push the bodies apart (Painleve's paradox while sliding, a
 # wedge while stuck).
@@ -156,7 +159,10 @@ def _first_root(fn, params, lo, hi):
     _, nxt, ok = newton(x, frozen[0], False)
     x = jnp.where(ok & (nxt > lo_) & (nxt < hi_), nxt, x)
     f, nxt, ok = newton(x, params, False)
-    return jnp.where(ok, nxt, x)
+    # Inside the bracket (a slip that vanishes just as the normal motion
+    # turns, a link's, has its root at the bracket's end).
+    x = jnp.where(ok & jnp.isfinite(nxt), nxt, x)
+    return jnp.clip(x, lo, hi)
 
 
 def _advance(st, k, g, rho, tau, r, g_slip, dt, v_end, d_end):
@@ -219,6 +225,9 @@ def _loading_segment(cs, law, st, friction_on):
 
         event = run & sliding & (slip(jnp.ones_like(v_a), params) < 0)
         u = _first_root(slip, params, jnp.zeros_like(v_a), jnp.ones_like(v_a))
+        # A slip that vanishes at the turning point itself (a link's slip and
+        # normal velocity are proportional) changes phase in restitution.
+        event = event & (seg.velocity(1.0 - u) > _AT_TURN * v_a)
         x_end = jnp.where(event, 1.0 - u, 0.0)
     dt = seg.travel(x_end, 1.0)
     v_end = jnp.where(event, seg.velocity(x_end), 0.0)
@@ -489,7 +498,9 @@ def solve_contact_space(scene, law, friction, settings) -> ImpactResult:
                 st["min_slip"] / v0, sigma_ref * st["vt"] / v0, v_t0, friction, settings
             )
         )
-    unresolved = ~st["separated"] & ~st["failed"]
+    # Never a silent NaN: a non-finite outcome is reported.
+    finite = jnp.all(jnp.isfinite(jnp.stack([t_end, st["pn"], st["pt"], st["vt"]])))
+    unresolved = (~st["separated"] & ~st["failed"]) | ~finite
     unsupported = ~approaches | st["painleve"] | unresolved
     result = first_failure(
         inside,
