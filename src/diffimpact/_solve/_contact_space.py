@@ -223,7 +223,11 @@ def _loading_segment(cs, law, st, friction_on):
             dt = seg.travel(x, 1.0, _COARSE if coarse else None)
             return sigma * (vt_a + (r / k) * dv + gamma * dt)
 
-        event = run & sliding & (slip(jnp.ones_like(v_a), params) < 0)
+        # A slip that vanishes within rounding of the turning point changes
+        # phase there (in restitution): a link's slip is proportional to its
+        # normal velocity, and its sign there is rounding.
+        at_turn = slip(jnp.ones_like(v_a), params)
+        event = run & sliding & (at_turn < -_AT_TURN * sigma * vt_a)
         u = _first_root(slip, params, jnp.zeros_like(v_a), jnp.ones_like(v_a))
         # A slip that vanishes at the turning point itself (a link's slip and
         # normal velocity are proportional) changes phase in restitution.
