@@ -68,6 +68,13 @@ class RESULTS(eqx.Enumeration):
         "Friction.reach, e.g. to 4, and Friction.annuli with it to keep as "
         "many springs in the contact"
     )
+    contact_space_unsupported = (
+        "diffimpact: method='contact_space' cannot take this impact: its "
+        "contact point does not approach the flat, or sliding drives it into "
+        "the flat (Painleve's paradox, k = a + sigma mu b <= 0), or its slip "
+        "changes phase more often than the contact-space solve resolves; use "
+        "method='smooth' (the planar ODE)"
+    )
 
 
 class SimulationError(RuntimeError):
@@ -103,6 +110,7 @@ _ERRORS = {
     "solver_failed": SolverError,
     "precision_lost": SolverError,
     "annuli_outgrown": OutsideModelError,
+    "contact_space_unsupported": SolverError,
     "unphysical": SimulationError,
 }
 

@@ -20,13 +20,14 @@ from .._result import RESULTS, ImpactResult, finish, first_failure, raise_if_fai
 from ..scenes._base import AbstractScene
 from ..scenes._planar import AbstractPlanarScene
 from ._bind import within_model
+from ._contact_space import contact_space_support, solve_contact_space
 from ._normal import _assemble, _solve_events, _solve_smooth
 from ._planar import solve_planar
 from ._quadrature import normal_timeline
 from ._settings import SolverSettings
 from ._tangential import tangential_report
 
-_METHODS = ("auto", "smooth", "events", "quadrature")
+_METHODS = ("auto", "smooth", "events", "quadrature", "contact_space")
 
 
 def _quadrature(problem, bound, settings, scene=None, friction=None):
@@ -104,6 +105,9 @@ def _simulate(scene, law, method, settings, n_history, friction, throw):
     # (`normal_decouples`), and decoupled scenes with rigid friction
     # (`_exact_tangential`): solved as the 1-DOF normal problem, with no
     # tangential state at all.
+    if method == "contact_space":
+        res = solve_contact_space(scene, law, friction, settings)
+        return finish(res, res.result, throw)
     problem, bound, inside = within_model(law, scene.normal_problem())
     # The ODE-free closed forms need a rate-independent power law.
     closed_form = bound.power_law and not bound.rate_dependent
@@ -184,18 +188,22 @@ def simulate(
     - `scene`: e.g. `diffimpact.scenes.NormalImpact` or
       `diffimpact.scenes.Collinear`.
     - `law`: a normal force law (`Hertz`, `JacksonGreen`, ...).
-    - `method`: ``"auto"`` (default), ``"smooth"``, ``"events"`` or
-      ``"quadrature"``.  ``"smooth"`` integrates the smooth-switched ODE
-      (every law, histories), ``"events"`` an event-switched one (1-DOF
-      normal impacts), and ``"quadrature"`` solves a normal impact by energy
-      integrals, without an ODE (rate-independent laws: Hertz, JacksonGreen;
-      exact to about 1e-11).  With friction on a scene whose tangential motion
-      decouples (a sphere on a plane) and rigid friction without a viscous
-      term, ``"quadrature"`` also gives the tangential outcome in closed form
-      (stick, re-slip and all; see `diffimpact._solve._tangential`).
-      ``"auto"`` takes ``"quadrature"`` wherever it applies, and ``"smooth"``
-      everywhere else (rate-dependent laws, coupled planar scenes, compliant
-      or viscous friction, ``n_history > 0``).
+    - `method`: ``"auto"`` (default), ``"smooth"``, ``"events"``, ``"quadrature"`` or
+      ``"contact_space"``.  ``"smooth"`` integrates the smooth-switched ODE (every law,
+      histories), ``"events"`` an event-switched one (1-DOF normal impacts), and
+      ``"quadrature"`` solves a normal impact by energy integrals, without an ODE
+      (rate-independent laws: Hertz, JacksonGreen; exact to about 1e-11).  With friction
+      on a scene whose tangential motion decouples (a sphere on a plane) and rigid
+      friction without a viscous term, ``"quadrature"`` also gives the tangential
+      outcome in closed form (stick, re-slip and all; see
+      `diffimpact._solve._tangential`). ``"contact_space"`` solves a rigid planar scene
+      (`PlanarBody`, `FreeBar`, `RotatingLink`, `SphereOnIncline`) with a
+      rate-independent power law and rigid Coulomb friction (or none) without an ODE,
+      with the geometry frozen at first contact (`diffimpact._solve._contact_space`; its
+      difference from the planar ODE, of the order of the rotation during the contact,
+      is in docs/limits.md). ``"auto"`` takes ``"quadrature"`` wherever it applies, and
+      ``"smooth"`` everywhere else (rate-dependent laws, coupled planar scenes,
+      compliant or viscous friction, ``n_history > 0``).
     - `settings`: a `SolverSettings`.
     - `friction`: a `Friction` at the contact point, for planar scenes
       (e.g. `diffimpact.scenes.SphereOnIncline`); None = frictionless,
@@ -262,7 +270,9 @@ def simulate(
             "`n_history` gives the history of a 1-DOF impact; this planar solve "
             "has none (use n_history=0)"
         )
-    if (
+    if method == "contact_space":
+        contact_space_support(scene, law, friction)
+    elif (
         isinstance(scene, AbstractPlanarScene)
         and not scene.normal_decouples
         and method not in ("auto", "smooth")
