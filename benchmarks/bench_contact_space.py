@@ -43,7 +43,7 @@ def _body(shape, mass, inertia, com_x=0.0):
     def make(p):
         return S.PlanarBody(
             mass, inertia, shape, STEEL, FLAT,
-            angle=p["angle"], velocity_x=p["vx"], velocity_y=p["vy"],
+            orientation=p["angle"], velocity_x=p["vx"], velocity_y=p["vy"],
             angular_velocity=p["w"], com_x=com_x,
         )  # fmt: skip
 
@@ -61,7 +61,7 @@ def _body(shape, mass, inertia, com_x=0.0):
 
 def _bar():
     def make(p):
-        return S.FreeBar(0.04718, STEEL, FLAT, height=p["h"], angle=p["angle"])
+        return S.FreeBar(0.04718, STEEL, FLAT, height=p["h"], tilt=p["angle"])
 
     def draw(rng, n):
         return {
@@ -96,7 +96,7 @@ def _link():
 def _sphere():
     def make(p):
         return S.SphereOnIncline(
-            4.11e-3, 5e-3, STEEL, FLAT, angle=p["angle"], height=p["h"]
+            4.11e-3, 5e-3, STEEL, FLAT, incline=p["angle"], height=p["h"]
         )
 
     def draw(rng, n):

@@ -54,7 +54,7 @@ COMPARED = (
 def body(kind, angle, vx, vy, w):
     shape, mass, inertia, com_x = BODIES[kind]
     return S.PlanarBody(
-        mass, inertia, shape, STEEL, FLAT, angle=angle, velocity_x=vx,
+        mass, inertia, shape, STEEL, FLAT, orientation=angle, velocity_x=vx,
         velocity_y=vy, angular_velocity=w, com_x=com_x,
     )  # fmt: skip
 
@@ -123,7 +123,7 @@ def test_sphere_is_the_closed_form(law):
     """On a sphere the geometry is constant: contact space is exact and must
     give the closed form of `_tangential` (sliding, sticking, re-slip)."""
     for angle, mu in [(0.3, 0.05), (0.3, 0.5), (0.6, 0.2), (0.0, 0.3), (1.2, 0.1)]:
-        scene = S.SphereOnIncline(4.11e-3, 5e-3, STEEL, FLAT, angle=angle, height=0.2)
+        scene = S.SphereOnIncline(4.11e-3, 5e-3, STEEL, FLAT, incline=angle, height=0.2)
         a = di.simulate(scene, law, "contact_space", friction=di.Friction(mu))
         b = di.simulate(scene, law, "quadrature", friction=di.Friction(mu))
         v0 = float(b.rebound_velocity / b.cor_newton)
@@ -147,7 +147,7 @@ def test_slide_stick_reverse_on_a_bar_and_link_with_the_ode():
     first order in the rotation during the contact."""
 
     def bar(r):
-        return S.FreeBar(0.04718, STEEL, FLAT, height=r[0], angle=r[1]), di.Friction(
+        return S.FreeBar(0.04718, STEEL, FLAT, height=r[0], tilt=r[1]), di.Friction(
             r[2]
         )
 
@@ -230,7 +230,9 @@ def test_what_the_path_cannot_take_is_named():
     with pytest.raises(ValueError, match="rigid Coulomb friction"):
         di.simulate(scene, JG, "contact_space", friction=di.Friction(0.3, mu_v=0.1))
     with pytest.raises(ValueError, match="head-on impact"):
-        di.simulate(S.NormalImpact(0.004, 5e-3, STEEL, FLAT, 1.0), JG, "contact_space")
+        di.simulate(
+            S.NormalImpact(0.004, 5e-3, STEEL, FLAT, velocity=1.0), JG, "contact_space"
+        )
     # A contact point that does not approach: the scene's own check.
     with pytest.raises(ValueError, match="must approach"):
         di.simulate(body("ellipse", 0.3, 0.0, 1.0, 0.0), JG, "contact_space")
@@ -241,7 +243,7 @@ def test_painleve_is_reported_not_solved():
     drive the contact point into the flat; the path says so."""
     rod = S.Capsule(0.05, 0.002)
     scene = S.PlanarBody(
-        0.01, 0.01 * 0.104**2 / 12, rod, STEEL, STEEL, angle=1.0,
+        0.01, 0.01 * 0.104**2 / 12, rod, STEEL, STEEL, orientation=1.0,
         velocity_x=-1.0, velocity_y=-1.0,
     )  # fmt: skip
     n, t = scene.contact_jacobian()
