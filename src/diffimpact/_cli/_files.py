@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import os
 import tempfile
+from importlib.metadata import PackageNotFoundError, version
 
 from .._io._files import open_new as open_new
 from .._io._units import parse_integer, parse_number
@@ -39,3 +40,21 @@ def writable_folder(out) -> bool:
             f"--out {out}: no file can be written there ({err.strerror})"
         ) from None
     return created
+
+
+# The libraries behind a result's numbers, as `--version` and the result
+# files' provenance name them.
+LIBRARIES = ("diffimpact", "jax", "jaxlib", "diffrax", "equinox", "optimistix",
+             "blackjax")  # fmt: skip
+
+
+def versions() -> dict[str, str | None]:
+    """Installed version of each of `LIBRARIES` (None: not installed), read
+    from the package metadata: nothing is imported."""
+    out = {}
+    for name in LIBRARIES:
+        try:
+            out[name] = version(name)
+        except PackageNotFoundError:
+            out[name] = None
+    return out

@@ -15,7 +15,7 @@ import sys
 import time
 import warnings
 
-from ._files import number
+from ._files import number, versions
 
 _LAWS = ("jackson-green", "hertz", "hunt-crossley", "lankarani-nikravesh", "flores")
 
@@ -363,24 +363,29 @@ _NEGATIVE = re.compile(r"^-(?:[0-9]+\.?[0-9]*|\.[0-9]+)(?:[eE][+-]?[0-9]+)?$|^-i
 
 
 def _version() -> str:
-    """``diffimpact X`` with the versions of the libraries a result depends
-    on (read from the installed metadata: nothing is imported)."""
-    from importlib.metadata import PackageNotFoundError, version
+    """``diffimpact X, jax Y, ...``: the libraries behind a result."""
+    return ", ".join(f"{k} {v or '(not installed)'}" for k, v in versions().items())
 
-    parts = []
-    for name in ("diffimpact", "jax", "diffrax", "equinox", "optimistix"):
-        try:
-            parts.append(f"{name} {version(name)}")
-        except PackageNotFoundError:
-            parts.append(f"{name} (not installed)")
-    return ", ".join(parts)
+
+class _Version(argparse.Action):
+    """``--version`` on one line (argparse's own action wraps it at the
+    terminal's width)."""
+
+    def __init__(self, option_strings, dest, **kwargs):
+        super().__init__(option_strings, dest, nargs=0, **kwargs)
+
+    def __call__(self, parser, namespace, values, option_string=None):
+        print(_version())
+        parser.exit()
 
 
 def main(argv=None) -> int:
     parser = argparse.ArgumentParser(
         prog="diffimpact", description="Differentiable impact simulation in JAX."
     )
-    parser.add_argument("--version", action="version", version=_version())
+    parser.add_argument(
+        "--version", action=_Version, help="show program's version number and exit"
+    )
     sub = parser.add_subparsers(dest="command", required=True)
     p = sub.add_parser(
         "demo", help="simulate a steel ball on a steel plate, all methods"

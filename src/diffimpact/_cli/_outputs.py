@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from ._files import open_new
+from ._files import open_new, versions
 
 
 def provenance(args) -> dict:
@@ -11,29 +11,11 @@ def provenance(args) -> dict:
     file's SHA-256, and the unit system of every number in the file."""
     import hashlib
     import sys
-    from importlib.metadata import PackageNotFoundError, version
-
-    def installed(name):
-        try:
-            return version(name)
-        except PackageNotFoundError:
-            return None
 
     with open(args.data, "rb") as fh:
         digest = hashlib.sha256(fh.read()).hexdigest()
     return {
-        "versions": {
-            name: installed(name)
-            for name in (
-                "diffimpact",
-                "jax",
-                "jaxlib",
-                "diffrax",
-                "equinox",
-                "optimistix",
-                "blackjax",
-            )
-        },  # fmt: skip
+        "versions": versions(),
         "command": ["diffimpact", *sys.argv[1:]],
         "seed": args.seed,
         "data_sha256": digest,
