@@ -24,6 +24,15 @@ from ._inference._experiment import Experiment as Experiment
 from ._inference._fit import fit as fit
 from ._inference._fit_result import FitResult as FitResult
 from ._inference._fit_result import IdentifiabilityWarning as IdentifiabilityWarning
+from ._inference._learned import CONTACT_FEATURES as CONTACT_FEATURES
+from ._inference._learned import Hybrid as Hybrid
+from ._inference._learned import Learned as Learned
+from ._inference._learned import available_features as available_features
+from ._inference._learning_curve import LearningCurve as LearningCurve
+from ._inference._learning_curve import learning_curve as learning_curve
+from ._inference._learning_curve import load_model as load_model
+from ._inference._learning_curve import save_model as save_model
+from ._inference._network import VelocityNetwork as VelocityNetwork
 from ._inference._posterior import posterior as posterior
 from ._inference._posterior_result import ConvergenceWarning as ConvergenceWarning
 from ._inference._posterior_result import PosteriorResult as PosteriorResult
@@ -39,6 +48,9 @@ from ._inference._sweep import normal_impact_row as normal_impact_row
 from ._inference._sweep import sample as sample
 from ._inference._sweep import sweep as sweep
 from ._inference._sweep import sweep_map as sweep_map
+from ._inference._train import TrainResult as TrainResult
+from ._inference._train import evaluate as evaluate
+from ._inference._train import train as train
 from ._io._data import DataError as DataError
 from ._io._data import ExperimentData as ExperimentData
 from ._io._data import load_experiments as load_experiments
