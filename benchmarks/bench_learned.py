@@ -132,10 +132,20 @@ def models(features):
     }
 
 
-FEATURES = {
-    "speed": ("normal_speed", "slip_ratio"),
-    "jackson-green": ("normal_speed", "normal_mobility", "orientation"),
-}
+# One feature set for both truths: the contact-space description of the
+# impact (what a compliant law's COR depends on: speed, effective mass,
+# curvature, and through the slip phases the coupling and the slip ratio).
+FEATURES = (
+    "normal_speed",
+    "slip_ratio",
+    "normal_mobility",
+    "coupling",
+    "contact_radius",
+)
+
+
+def learned_cor(model, rows):
+    return np.asarray(jax.vmap(lambda x: model.parameters(x)["law.cor"])(rows))
 
 
 def noise_floor(data, exact, test):
@@ -163,7 +173,7 @@ def main(argv=None):
         t0 = time.perf_counter()
         data, cor, exact = synthetic(truth)
         made = time.perf_counter() - t0
-        ms = models(FEATURES[truth])
+        ms = models(FEATURES)
         curve = di.learning_curve(data, ms, sizes=sizes, seeds=seeds)
         floor = np.mean([noise_floor(data, exact, t) for t in curve.test_rows.values()])
         print(f"\n{truth}: data made in {made:.1f} s; noise floor {floor:.4f}")
@@ -178,7 +188,7 @@ def main(argv=None):
         r = di.train(ms["hybrid, MLP"], data, rows=rest, seed=0)
         took = time.perf_counter() - t0
         rows = {q: jnp.asarray(v[test]) for q, v in data.inputs.items()}
-        learned = np.asarray(jax.vmap(lambda x: r.model.parameters(x)["law.cor"])(rows))
+        learned = learned_cor(r.model, rows)
         gap = np.abs(learned - cor[test])
         print(
             f"  MLP hybrid on {len(rest)} rows: {took:.1f} s, {r.steps} steps, "

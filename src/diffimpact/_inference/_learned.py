@@ -52,7 +52,11 @@ from ._scenes import scene_spec
 # a = J_n M^-1 J_n^T, b = J_n M^-1 J_t^T, c = J_t M^-1 J_t^T, made
 # dimensionless by the body's mass.  They describe the impact independently
 # of how the body is parametrised (an ellipse's orientation and a bar's
-# tilt give the same features for the same contact).
+# tilt give the same features for the same contact).  With the contact
+# radius they are what a compliant law's COR depends on besides the
+# materials: the approach speed, the effective mass and the curvature
+# (Johnson 1985, sec. 11.4; Jackson-Green loading and unloading, JG-5 to
+# JG-10).
 CONTACT_FEATURES = {
     "normal_speed": "approach speed of the contact point, J_n q_dot [m/s]",
     "tangential_speed": "slip of the contact point at first contact, J_t q_dot [m/s]",
@@ -60,6 +64,7 @@ CONTACT_FEATURES = {
     "normal_mobility": "m J_n M^-1 J_n^T: mass over the effective normal mass [-]",
     "coupling": "m J_n M^-1 J_t^T: the normal-tangential coupling [-]",
     "tangential_mobility": "m J_t M^-1 J_t^T [-]",
+    "contact_radius": "effective radius of curvature at the first contact (G-2) [m]",
 }
 
 DOMAINS = {
@@ -158,6 +163,7 @@ def _contact(scene: AbstractPlanarScene) -> dict:
     inv_m = 1.0 / m
     s0, v0 = j_n @ q_dot0, j_t @ q_dot0
     return {
+        "contact_radius": scene.contact().effective_radius,
         "normal_speed": s0,
         "tangential_speed": v0,
         "slip_ratio": v0 / s0,

@@ -363,7 +363,7 @@ def _train_one(model, train_batch, val_batch, quantities, scale, lam, settings):
     # from a Python float) turns strong after the first update, and the
     # loop would be compiled again for it.
     params = jax.tree.map(lambda x: x + jnp.zeros((), x.dtype), params)
-    optimiser = _adam(float(learning_rate))
+    optimiser = _adam(float(learning_rate), int(steps))
     opt_state = optimiser.init(params)
     best, best_val, best_step, step = model, np.inf, 0, 0
     history = []
@@ -397,8 +397,13 @@ def _train_one(model, train_batch, val_batch, quantities, scale, lam, settings):
 _ADAM = {}
 
 
-def _adam(learning_rate: float):
-    """One optimiser object per learning rate: `_run` compiles once for it."""
-    if learning_rate not in _ADAM:
-        _ADAM[learning_rate] = optax.adam(learning_rate)
-    return _ADAM[learning_rate]
+def _adam(learning_rate: float, steps: int):
+    """Adam with the learning rate falling to 1 % of its start over `steps`
+    (a cosine): large steps find the basin, small ones settle in it
+    instead of rattling at the scale of the first.  One optimiser object
+    per (rate, steps): `_run` compiles once for it."""
+    key = (learning_rate, steps)
+    if key not in _ADAM:
+        schedule = optax.cosine_decay_schedule(learning_rate, steps, alpha=0.01)
+        _ADAM[key] = optax.adam(schedule)
+    return _ADAM[key]
