@@ -223,10 +223,11 @@ class Learned(eqx.Module):
     ``orientation``, ...); `kind`: ``"mlp"`` (a tanh MLP of `width` and
     `depth`; the default with features), ``"polynomial"`` (every monomial
     up to `degree`) or ``"constant"`` (no dependence: the plain physics,
-    trained the same way; the default without features); `start`: the constant to start from (None: the experiment's
-    value); `domain`: ``"unit"`` (0, 1), ``"nonnegative"`` or
-    ``"positive"`` (None: from the parameter, ``cor`` unit, ``mu``
-    nonnegative, others positive); `seed`: the MLP's initial weights.
+    trained the same way; the default without features); `start`: the
+    constant to start from (None: the experiment's value); `domain`:
+    ``"unit"`` (0, 1), ``"nonnegative"`` or ``"positive"`` (None: from the
+    parameter, ``cor`` unit, ``mu`` nonnegative, others positive); `seed`:
+    the MLP's initial weights.
 
     Put in a `Hybrid`, it is bound to its parameter: `domain`, the raw
     constant and the feature scaling are then set (`bind`, `with_scaling`).
