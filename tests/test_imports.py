@@ -12,6 +12,7 @@ PACKAGE = pathlib.Path(__file__).parent.parent / "src" / "diffimpact"
 LAZY = {
     "diffimpact._cli._main",
     "diffimpact._cli._fit",
+    "diffimpact._cli._learn",
     "diffimpact._cli._outputs",
     "diffimpact._cli._sweep",
 }

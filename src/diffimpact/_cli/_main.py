@@ -446,9 +446,11 @@ def main(argv=None) -> int:
     s.set_defaults(func=simulate_cmd)
 
     from . import _fit as _cli_fit
+    from . import _learn as _cli_learn
     from . import _sweep as _cli_sweep
 
     _cli_fit.register(sub)
+    _cli_learn.register(sub)
     _cli_sweep.register(sub)
 
     argv = sys.argv[1:] if argv is None else list(argv)

@@ -1,0 +1,214 @@
+"""``diffimpact learn``: a parameter as a function of the impact's state,
+learned from an experiment CSV and compared with the plain physics and a
+plain network on held-out rows.
+
+    diffimpact learn DATA.csv [--learn cor[=FEATURES]] [--holdout 0.3] [--out DIR]
+
+trains, on the rows not held out, the rigid impact law (or the file's
+compliant law) with constant parameters, the same law with the named
+parameters learned (`diffimpact.Learned`), and a plain MLP; prints their
+median held-out errors and writes, into DIR: ``learn.json`` (the models,
+their held-out errors, the rows, provenance), ``errors.csv`` (each row's
+error under each model) and ``hybrid.eqx`` (the trained hybrid,
+`diffimpact.load_model`).  Nothing in DIR is overwritten without ``--force``.
+"""
+
+from __future__ import annotations
+
+import csv
+import json
+import os
+import time
+
+from ._files import number, open_new, writable_folder
+from ._outputs import provenance
+
+_OUTPUT_FILES = ("learn.json", "errors.csv", "hybrid.eqx")
+# The contact-space description of the first contact: what a compliant
+# law's COR depends on besides the materials (how-to "When constant
+# parameters are not enough").
+DEFAULT_FEATURES = (
+    "normal_speed",
+    "slip_ratio",
+    "normal_mobility",
+    "coupling",
+    "contact_radius",
+)
+
+
+def register(sub) -> None:
+    p = sub.add_parser(
+        "learn",
+        help="learn a parameter as a function of the impact's state, and compare "
+        "with the constant-parameter physics and a plain network on held-out rows",
+    )
+    p.add_argument("data", help="experiment CSV of a planar scene")
+    p.add_argument(
+        "--learn",
+        action="append",
+        default=[],
+        metavar="PARAM[=FEATURES]",
+        help="a parameter to learn, with comma-separated features (default "
+        f"{','.join(DEFAULT_FEATURES)}); repeat for several (default: cor)",
+    )
+    p.add_argument(
+        "--law",
+        choices=("rigid", "file"),
+        default="rigid",
+        help="rigid: RigidContact with --restitution and Coulomb friction "
+        "(default); file: the compliant law the file's experiment declares",
+    )
+    p.add_argument(
+        "--restitution",
+        choices=("newton", "poisson", "energetic"),
+        default="energetic",
+        help="the rigid law's restitution (default energetic: never gains energy)",
+    )
+    p.add_argument(
+        "--kind",
+        choices=("mlp", "polynomial"),
+        default="mlp",
+        help="the learned function: a small MLP (default) or a quadratic polynomial",
+    )
+    p.add_argument(
+        "--holdout",
+        type=number,
+        default=0.3,
+        help="fraction of the rows held out to compare the models (default 0.3)",
+    )
+    p.add_argument(
+        "--no-network", action="store_true", help="skip the plain-network baseline"
+    )
+    p.add_argument("--seed", type=int, default=0, help="draw of the rows (default 0)")
+    p.add_argument("--out", default=None, help="output folder (default learn-<data>)")
+    p.add_argument("--force", action="store_true", help="overwrite outputs in --out")
+    p.set_defaults(func=run)
+
+
+def _parse_learn(items) -> dict:
+    learned = {}
+    for item in items or ["cor"]:
+        name, _, feats = item.partition("=")
+        name = name.strip()
+        if not name:
+            raise ValueError(f"--learn {item!r}: expected PARAM or PARAM=FEATURES")
+        features = tuple(f.strip() for f in feats.split(",") if f.strip())
+        if feats and not features:
+            raise ValueError(f"--learn {item!r}: no feature after '='")
+        if name in learned:
+            raise ValueError(f"--learn: {name!r} is given twice")
+        learned[name] = features or DEFAULT_FEATURES
+    return learned
+
+
+def run(args) -> int:
+    if not 0.0 < args.holdout < 1.0:
+        raise ValueError(f"--holdout must be a fraction in (0, 1), got {args.holdout}")
+    if args.out is not None and not args.out.strip():
+        raise ValueError("--out is empty: give a folder (or leave --out out)")
+    out = args.out or "learn-" + os.path.splitext(os.path.basename(args.data))[0]
+    if os.path.exists(out) and not os.path.isdir(out):
+        raise ValueError(f"--out {out}: is a file, not a folder")
+    learn = _parse_learn(args.learn)
+    existing = [f for f in _OUTPUT_FILES if os.path.exists(os.path.join(out, f))]
+    if existing and not args.force:
+        raise ValueError(
+            f"--out {out}: {', '.join(existing)} already exist; pass --force to "
+            "overwrite them, or choose another --out"
+        )
+
+    import numpy as np
+
+    import diffimpact as di
+
+    data = di.load_experiments(args.data)
+    declared = di.Experiment.from_file(data)
+    if not isinstance(declared.scene, di.scenes.AbstractPlanarScene):
+        raise ValueError(
+            f"{args.data}: learn needs a planar scene (a body with a contact point "
+            f"and its lever); this file's is {type(declared.scene).__name__}"
+        )
+    if args.law == "rigid":
+        friction = declared.friction or di.Friction(0.2)
+        experiment = di.Experiment(
+            declared.scene,
+            di.RigidContact(0.6, args.restitution),
+            di.Friction(friction.mu),
+        )
+        constants = ["cor", "mu"]
+    else:
+        experiment = declared
+        constants = ["mu"] if declared.friction is not None else []
+    learned = {p: di.Learned(f, args.kind, seed=args.seed) for p, f in learn.items()}
+    for p in constants:
+        learned.setdefault(p, di.Learned())
+    physics = {p: di.Learned() for p in learned}
+    models = {
+        "physics, constant": di.Hybrid(experiment, physics),
+        "hybrid": di.Hybrid(experiment, learned),
+    }
+    if not args.no_network:
+        models["network"] = di.VelocityNetwork(
+            experiment, list(data.inputs), list(data.outputs), seed=args.seed
+        )
+    n_test = round(args.holdout * data.n)
+    if n_test < 1 or data.n - n_test < 2:
+        raise ValueError(
+            f"--holdout {args.holdout}: leaves {n_test} of {data.n} rows held out "
+            "and needs at least 1 held out and 2 to learn from"
+        )
+    order = np.random.default_rng(args.seed).permutation(data.n)
+    test, train = np.sort(order[:n_test]), np.sort(order[n_test:])
+    writable_folder(out)
+    results, errors = {}, {}
+    for name, model in models.items():
+        print(f"training {name} on {len(train)} rows...", flush=True)
+        t0 = time.perf_counter()
+        r = di.train(model, data, rows=train, seed=args.seed)
+        results[name] = r
+        errors[name] = r.errors
+        print(
+            f"  {r.steps} steps, {time.perf_counter() - t0:.1f} s; held-out median "
+            f"error {r.median_error(test):.4f}",
+            flush=True,
+        )
+    width = max(len(m) for m in models)
+    print(f"\nheld-out median relative error ({len(test)} rows):")
+    for name, r in results.items():
+        print(f"  {name:<{width}}  {r.median_error(test):.4f}")
+    lines = data.lines if data.lines is not None else np.arange(1, data.n + 1)
+    held_out = set(test.tolist())
+    with open_new(os.path.join(out, "errors.csv"), args.force) as fh:
+        w = csv.writer(fh)
+        w.writerow(["line", "held_out", *[f"error_{m}" for m in models]])
+        for i in range(data.n):
+            w.writerow(
+                [int(lines[i]), int(i in held_out)]
+                + [repr(float(errors[m][i])) for m in models]
+            )
+    hybrid = results["hybrid"]
+    summary = {
+        "data": args.data,
+        "law": type(experiment.law).__name__,
+        "learned": {
+            p: {"features": list(f.features), "kind": f.kind}
+            for p, f in hybrid.model.learned.items()
+        },
+        "error": "median relative error of the velocities after, kinetic norm",
+        "held_out_median_error": {m: r.median_error(test) for m, r in results.items()},
+        "training_median_error": {
+            m: float(np.nanmedian(r.errors[r.train_rows])) for m, r in results.items()
+        },
+        "regularisation": {m: r.regularisation for m, r in results.items()},
+        "steps": {m: r.steps for m, r in results.items()},
+        "held_out_lines": [int(lines[i]) for i in test],
+        "provenance": provenance(args),
+    }
+    with open_new(os.path.join(out, "learn.json"), args.force) as fh:
+        json.dump(summary, fh, indent=2, allow_nan=False)
+    path = os.path.join(out, "hybrid.eqx")
+    if args.force and os.path.exists(path):
+        os.remove(path)
+    di.save_model(path, hybrid.model)
+    print(f"wrote {out}/: {', '.join(_OUTPUT_FILES)}")
+    return 0
