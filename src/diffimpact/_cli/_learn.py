@@ -4,8 +4,8 @@ plain network on held-out rows.
 
     diffimpact learn DATA.csv [--learn cor[=FEATURES]] [--holdout 0.3] [--out DIR]
 
-trains, on the rows not held out, the rigid impact law (or the file's
-compliant law) with constant parameters, the same law with the named
+trains, on the rows not held out, the rigid impact law (Routh's method
+with Coulomb friction) with constant COR and mu, the same law with the named
 parameters learned (`diffimpact.Learned`), and a plain MLP; prints their
 median held-out errors and writes, into DIR: ``learn.json`` (the models,
 their held-out errors, the rows, provenance), ``errors.csv`` (each row's
@@ -48,15 +48,9 @@ def register(sub) -> None:
         action="append",
         default=[],
         metavar="PARAM[=FEATURES]",
-        help="a parameter to learn, with comma-separated features (default "
-        f"{','.join(DEFAULT_FEATURES)}); repeat for several (default: cor)",
-    )
-    p.add_argument(
-        "--law",
-        choices=("rigid", "file"),
-        default="rigid",
-        help="rigid: RigidContact with --restitution and Coulomb friction "
-        "(default); file: the compliant law the file's experiment declares",
+        help="a parameter to learn (cor or mu), with comma-separated features "
+        f"(default: {', '.join(DEFAULT_FEATURES)}); repeat for several "
+        "(default: cor)",
     )
     p.add_argument(
         "--restitution",
@@ -128,17 +122,16 @@ def run(args) -> int:
             f"{args.data}: learn needs a planar scene (a body with a contact point "
             f"and its lever); this file's is {type(declared.scene).__name__}"
         )
-    if args.law == "rigid":
-        friction = declared.friction or di.Friction(0.2)
-        experiment = di.Experiment(
-            declared.scene,
-            di.RigidContact(0.6, args.restitution),
-            di.Friction(friction.mu),
-        )
-        constants = ["cor", "mu"]
-    else:
-        experiment = declared
-        constants = ["mu"] if declared.friction is not None else []
+    # The rigid law: closed form, so training over thousands of rows takes
+    # seconds.  A compliant law's parameters are learned from Python
+    # (`diffimpact.Hybrid` of any Experiment).
+    friction = declared.friction or di.Friction(0.2)
+    experiment = di.Experiment(
+        declared.scene,
+        di.RigidContact(0.6, args.restitution),
+        di.Friction(friction.mu),
+    )
+    constants = ["cor", "mu"]
     learned = {p: di.Learned(f, args.kind, seed=args.seed) for p, f in learn.items()}
     for p in constants:
         learned.setdefault(p, di.Learned())
