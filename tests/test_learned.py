@@ -325,3 +325,67 @@ def test_bad_learned_input_is_named(data):
         di.train(good, d, quantities=("contact_time",))
     with pytest.raises(ValueError, match="validation must lie in"):
         di.train(good, d, validation=1.0)
+
+
+def test_any_parameter_a_compliant_law_fits_can_be_learned():
+    """A yield strength (a positive parameter: an exponential of the
+    constant plus the correction) as a function of the approach speed, in
+    a Jackson-Green normal impact: each row's prediction is `predict` of the
+    experiment with that yield strength set, exactly, and its gradient with
+    respect to the correction is finite and nonzero."""
+    exp = di.Experiment.default("normal_impact")
+    h = di.Hybrid(exp, {"yield_strength": di.Learned("normal_speed", "polynomial")})
+    fn = h.learned["scene.flat.yield_strength"]
+    assert fn.domain == "positive"
+    h = eqx.tree_at(
+        lambda m: m.learned["scene.flat.yield_strength"].correction.coefficients,
+        h,
+        jnp.array([0.3, -0.1]),
+    )
+    h = h.with_scaling({"impact_velocity": jnp.array([0.5, 1.0, 2.0])})
+    for v in (0.5, 2.0):
+        row = {"impact_velocity": v}
+        s_y = h.parameters(row)["scene.flat.yield_strength"]
+        assert float(s_y) != pytest.approx(400e6, rel=1e-3)  # it does vary
+        plain = di.predict(
+            eqx.tree_at(lambda e: e.scene.flat.yield_strength, exp, s_y), row
+        )
+        assert float(h.predict(row)["cor_normal"]) == float(plain["cor_normal"])
+
+    def cor(c):
+        m = eqx.tree_at(
+            lambda m: m.learned["scene.flat.yield_strength"].correction.coefficients,
+            h,
+            c,
+        )
+        return m.predict({"impact_velocity": 1.5})["cor_normal"]
+
+    g = jax.grad(cor)(jnp.array([0.3, -0.1]))
+    assert np.all(np.isfinite(g)) and np.all(np.abs(g) > 0)
+
+
+def test_a_learned_cor_with_stronges_law_never_gains_energy(data):
+    """Whatever the learned function, the COR stays in (0, 1) and Stronge's
+    energetic restitution then never gains energy: over 200 states with a
+    correction pushed to the logistic's top (COR up to 0.999), the kinetic
+    energy after is at most the energy before."""
+    d, _, _ = data
+    rigid = ellipse(di.RigidContact(0.6, "energetic"), mu=0.6)
+    h = di.Hybrid(rigid, {"cor": di.Learned(("normal_speed",), "polynomial")})
+    h = eqx.tree_at(
+        lambda m: m.learned["law.cor"].raw, h, jnp.asarray(7.0)
+    )  # sigmoid(7) = 0.999
+    rows = {q: jnp.asarray(v[:200]) for q, v in d.inputs.items()}
+    out = jax.jit(jax.vmap(lambda r: h.predict(r)))(rows)
+    w = np.array([0.05, 0.05, INERTIA])
+    before = np.stack(
+        [
+            d.inputs[q][:200]
+            for q in ("velocity_x", "velocity_y", "angular_velocity_before")
+        ],
+        1,
+    )
+    after = np.stack([np.asarray(out[q]) for q in OUTPUTS], 1)
+    e0, e1 = np.sum(w * before**2, 1), np.sum(w * after**2, 1)
+    assert np.all(e1 <= e0 * (1 + 1e-12)), np.max(e1 / e0)
+    assert np.max(e1 / e0) > 0.9  # nearly elastic: the check has teeth
