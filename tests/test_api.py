@@ -84,3 +84,36 @@ def test_float32():
     r64 = di.simulate(sphere(1.0, 300e6), di.JacksonGreen(), "quadrature")
     for f in ("contact_time", "cor_newton", "max_deflection", "permanent_deformation"):
         assert rel(getattr(r32, f), getattr(r64, f)) < 1e-3, f
+
+
+def test_one_route_per_kind_of_impact():
+    """`simulate` decides once which solver an impact takes (`route`, a key
+    of one table): the exact quadrature where a rate-independent law allows
+    it, the smooth ODE for rate-dependent laws and histories, the planar ODE
+    for coupled planar scenes, contact space and events only on request."""
+    from diffimpact._solve._simulate import _SOLVERS, route
+
+    b, p = di.Material(208e9, 0.3), di.Material(205e9, 0.29, 355e6)
+    normal = di.scenes.NormalImpact(4e-3, 5e-3, b, p, velocity=1.0)
+    incline = di.scenes.SphereOnIncline(4e-3, 5e-3, b, p, incline=0.5, height=0.05)
+    body = di.scenes.PlanarBody(
+        0.02, 2e-6, di.scenes.Ellipse(0.02, 0.01), b, p,
+        orientation=0.4, velocity_x=0.3, velocity_y=-1.0,
+    )  # fmt: skip
+    f = di.Friction(0.2)
+    hc = di.HuntCrossley(cor=0.8)
+    cases = [
+        ((normal, di.JacksonGreen(), None, "auto", 0), "quadrature"),
+        ((normal, di.JacksonGreen(), None, "auto", 5), "smooth"),
+        ((normal, hc, None, "auto", 0), "smooth"),
+        ((normal, di.JacksonGreen(), None, "events", 0), "events"),
+        ((incline, di.JacksonGreen(), f, "auto", 0), "quadrature"),
+        ((incline, hc, f, "auto", 0), "planar"),
+        ((body, di.Hertz(), None, "auto", 0), "planar"),
+        ((body, di.Hertz(), f, "contact_space", 0), "contact_space"),
+    ]
+    for args, expected in cases:
+        assert route(*args) == expected, (args, expected)
+    assert set(_SOLVERS) == {e for _, e in cases}
+    with pytest.raises(ValueError, match="method='quadrature' with friction needs"):
+        route(incline, hc, f, "quadrature", 0)

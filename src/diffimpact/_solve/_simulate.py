@@ -1,10 +1,12 @@
 """One impact, from first contact to separation: `simulate`.
 
-Three methods share one post-processing step (``_normal._assemble``):
-``"smooth"`` and ``"events"`` (diffrax solves, `._normal`) and
-``"quadrature"`` (the ODE-free energy solution, `._quadrature`); planar
-scenes with friction, or whose rotation couples to the normal motion, are
-solved by `._planar`.
+`route` is the one decision of which solver an impact takes, a key of the
+table `_SOLVERS`.  Three methods of the 1-DOF normal problem share one
+post-processing step (``_normal._assemble``): ``"smooth"`` and ``"events"``
+(diffrax solves, `._normal`) and ``"quadrature"`` (the ODE-free energy
+solution, `._quadrature`); planar scenes with friction, or whose rotation
+couples to the normal motion, are solved by `._planar`, or on request in
+contact space (`._contact_space`).
 """
 
 from __future__ import annotations
@@ -19,7 +21,7 @@ from .._laws._friction import Friction
 from .._result import RESULTS, ImpactResult, finish, first_failure, raise_if_failed
 from ..scenes._base import AbstractScene
 from ..scenes._planar import AbstractPlanarScene
-from ._bind import within_model
+from ._bind import _bind, within_model
 from ._contact_space import contact_space_support, solve_contact_space
 from ._normal import _assemble, _solve_events, _solve_smooth
 from ._planar import solve_planar
@@ -100,23 +102,35 @@ def _simulate(scene, law, method, settings, n_history, friction, throw):
     planar = isinstance(scene, AbstractPlanarScene)
     if planar:  # free flight to the contact in closed form, not integrated
         scene = scene.at_first_contact()
-    coupled = planar and (friction is not None or not scene.normal_decouples)
-    # 1-DOF scenes, frictionless planar scenes whose normal DOF decouples
-    # (`normal_decouples`), and decoupled scenes with rigid friction
-    # (`_exact_tangential`): solved as the 1-DOF normal problem, with no
-    # tangential state at all.
+    solver = _SOLVERS[route(scene, law, friction, method, n_history)]
+    res = solver(scene, law, friction, settings, n_history)
+    return finish(res, res.result, throw)
+
+
+def route(scene, law, friction, method: str, n_history: int) -> str:
+    """Which solver of `_SOLVERS` an impact takes: the one decision
+    `simulate` makes, from the scene's kind, the law's, the friction's and
+    the method (all static structure, never traced numbers).
+
+    ``"contact_space"`` where asked; ``"planar"`` (the planar ODE) for a
+    planar scene with friction, or whose rotation couples to the normal
+    motion, unless its tangential outcome has a closed form; otherwise the
+    1-DOF normal problem, with no tangential state: ``"quadrature"`` (the
+    ODE-free solution, and the closed-form tangential outcome) wherever
+    ``"auto"`` allows it, else ``"smooth"`` or ``"events"``."""
     if method == "contact_space":
-        res = solve_contact_space(scene, law, friction, settings)
-        return finish(res, res.result, throw)
-    problem, bound, inside = within_model(law, scene.normal_problem())
-    # The ODE-free closed forms need a rate-independent power law.
-    closed_form = bound.power_law and not bound.rate_dependent
+        return "contact_space"
+    planar = isinstance(scene, AbstractPlanarScene)
+    coupled = planar and (friction is not None or not scene.normal_decouples)
+    # The ODE-free closed forms need a rate-independent power law: a
+    # property of the bound law's class, which binding decides.
+    bound_type = type(_bound_law(scene, law))
+    closed_form = bound_type.power_law and not bound_type.rate_dependent
     exact = _exact_tangential(scene, friction) and closed_form
     if coupled and method == "quadrature" and not exact:
         raise ValueError(_NO_EXACT_TANGENTIAL)
     if coupled and not (exact and method in ("auto", "quadrature")):
-        res = solve_planar(scene, law, friction, settings)
-        return finish(res, res.result, throw)
+        return "planar"
     # "auto": the exact ODE-free solution wherever it applies (a
     # rate-independent power law); the smooth ODE for other laws and for
     # histories.
@@ -124,23 +138,70 @@ def _simulate(scene, law, method, settings, n_history, friction, throw):
         method == "auto" and (not closed_form or n_history > 0)
     )
     if smooth and not coupled:
-        raw = _solve_smooth(problem, bound, settings, n_history)
-        tangential = {}
-    elif method == "events":
-        raw = _solve_events(problem, bound, settings)
-        tangential = {}
-    else:
-        raw = _quadrature(problem, bound, settings, scene, friction)
+        return "smooth"
+    return "events" if method == "events" else "quadrature"
+
+
+def _bound_law(scene, law):
+    """The law bound to the scene's normal problem, traced abstractly (no
+    computation; a calibrated law's damping ratio, a root solve, is stood
+    in for by zero): only its class is read."""
+
+    def bind(s, w):
+        return _bind(w, s.normal_problem(), jnp.zeros(()))
+
+    return jax.eval_shape(bind, scene, law)
+
+
+def _contact_space(scene, law, friction, settings, n_history):
+    return solve_contact_space(scene, law, friction, settings)
+
+
+def _planar(scene, law, friction, settings, n_history):
+    return solve_planar(scene, law, friction, settings)
+
+
+def _normal(solve):
+    """A solver of the 1-DOF normal problem, assembled into an
+    `ImpactResult` (the scene's extras, the tangential outcome where the
+    quadrature gives one)."""
+
+    def solver(scene, law, friction, settings, n_history):
+        problem, bound, inside = within_model(law, scene.normal_problem())
+        raw = solve(problem, bound, settings, n_history, scene, friction)
         tangential = raw.pop("tangential", {})
-    result = first_failure(inside, raw.pop("result"))
-    out = _assemble(problem, bound, raw)
-    result = first_failure(result, _physical(out))
-    extras = scene.extras(out["rebound_velocity"])
-    if tangential:
-        extras = {**extras, **tangential}
-    elif planar:
-        extras = {**extras, **scene.frictionless_report(out["contact_time"])}
-    return finish(ImpactResult(**out, extras=extras, result=result), result, throw)
+        result = first_failure(inside, raw.pop("result"))
+        out = _assemble(problem, bound, raw)
+        result = first_failure(result, _physical(out))
+        extras = scene.extras(out["rebound_velocity"])
+        if tangential:
+            extras = {**extras, **tangential}
+        elif isinstance(scene, AbstractPlanarScene):
+            extras = {**extras, **scene.frictionless_report(out["contact_time"])}
+        return ImpactResult(**out, extras=extras, result=result)
+
+    return solver
+
+
+_SOLVERS = {
+    "contact_space": _contact_space,
+    "planar": _planar,
+    "smooth": _normal(
+        lambda problem, bound, settings, n_history, scene, friction: _solve_smooth(
+            problem, bound, settings, n_history
+        )
+    ),
+    "events": _normal(
+        lambda problem, bound, settings, n_history, scene, friction: _solve_events(
+            problem, bound, settings
+        )
+    ),
+    "quadrature": _normal(
+        lambda problem, bound, settings, n_history, scene, friction: _quadrature(
+            problem, bound, settings, scene, friction
+        )
+    ),
+}
 
 
 _NO_EXACT_TANGENTIAL = (
