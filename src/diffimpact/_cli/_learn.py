@@ -88,8 +88,11 @@ def _parse_learn(items) -> dict:
     for item in items or ["cor", "mu"]:
         name, _, feats = item.partition("=")
         name = name.strip()
-        if not name:
-            raise ValueError(f"--learn {item!r}: expected PARAM or PARAM=FEATURES")
+        if name not in ("cor", "mu"):
+            raise ValueError(
+                f"--learn {item!r}: the parameter is 'cor' or 'mu' (the rigid "
+                "law's), e.g. --learn cor=normal_speed,slip_ratio"
+            )
         features = tuple(f.strip() for f in feats.split(",") if f.strip())
         if feats and not features:
             raise ValueError(f"--learn {item!r}: no feature after '='")
@@ -97,6 +100,11 @@ def _parse_learn(items) -> dict:
             raise ValueError(f"--learn: {name!r} is given twice")
         learned[name] = features or DEFAULT_FEATURES
     return learned
+
+
+def _json_number(x: float):
+    """A number for strict JSON: inf (every row failed) as null."""
+    return x if x == x and abs(x) != float("inf") else None
 
 
 def run(args) -> int:
@@ -187,15 +195,19 @@ def run(args) -> int:
     summary = {
         "data": args.data,
         "law": type(experiment.law).__name__,
+        "restitution": args.restitution,
         "learned": {
             p: {"features": list(f.features), "kind": f.kind}
             for p, f in hybrid.model.learned.items()
         },
         "error": "median relative error of the velocities after, kinetic norm",
-        "held_out_median_error": {m: r.median_error(test) for m, r in results.items()},
-        "training_median_error": {
-            m: float(np.nanmedian(r.errors[r.train_rows])) for m, r in results.items()
+        "held_out_median_error": {
+            m: _json_number(r.median_error(test)) for m, r in results.items()
         },
+        "training_median_error": {
+            m: _json_number(r.median_error(r.train_rows)) for m, r in results.items()
+        },
+        "failed_rows": {m: len(r.failed) for m, r in results.items()},
         "regularisation": {m: r.regularisation for m, r in results.items()},
         "steps": {m: r.steps for m, r in results.items()},
         "held_out_lines": [int(lines[i]) for i in test],

@@ -7,9 +7,10 @@ approach (the normal COR falls with the normal approach speed, Goldsmith's
 *Impact*, 1960; Johnson, *Contact Mechanics*, 1985, ch. 11; the tangential
 response changes with the ratio of tangential to normal approach speed,
 Maw, Barber & Fawcett 1976).  `Learned` keeps the physics (the impact is
-still `predict` of the experiment, so impulses stay in Coulomb's cone and
-energy never rises) and lets one of its parameters vary with named
-features of the state:
+still `predict` of the experiment, so impulses stay in Coulomb's cone) and
+lets one of its parameters vary with named
+features of the state (a COR kept in (0, 1) under Stronge's energetic
+restitution, which never gains energy, keeps every impact dissipative):
 
     ``p(x) = g(c + f(z(x)))``, ``z = (x - shift) / scale``,
 
@@ -73,8 +74,19 @@ DOMAINS = {
     "positive": "(0, inf)",
 }
 
-# Parameters whose domain is not (0, inf), by the last part of their path.
-_DOMAIN_OF = {"cor": "unit", "mu": "nonnegative", "mu_v": "nonnegative"}
+# Parameters whose domain is not (0, inf), by the last part of their path;
+# those in _NO_DEFAULT have a domain none of the three maps fits, and need
+# domain= given.
+_DOMAIN_OF = {
+    "cor": "unit",
+    "mu": "nonnegative",
+    "mu_v": "nonnegative",
+    "mu_s": "nonnegative",
+}
+_NO_DEFAULT = ("poisson_ratio",)
+# A start on the edge of a domain the map reaches only in the limit (a COR
+# of 1, a friction coefficient of 0) starts this far inside instead.
+_EDGE = 1e-6
 
 
 def _to_domain(domain: str, raw):
@@ -97,8 +109,8 @@ def _within(domain: str, value):
     """Traced: ``value`` lies in the closure a solve accepts (a logistic
     rounds to exactly 1 for a large argument: a COR of 1 is still valid)."""
     finite = jnp.isfinite(value)
-    if domain == "unit":
-        return finite & (value > 0) & (value <= 1)
+    if domain == "unit":  # [0, 1]: a rigid law's COR may be exactly 0 or 1
+        return finite & (value >= 0) & (value <= 1)
     if domain == "nonnegative":
         return finite & (value >= 0)
     return finite & (value > 0)
@@ -293,15 +305,33 @@ class Learned(eqx.Module):
     def bind(self, name: str, value) -> Learned:
         """This function bound to parameter ``name`` whose current value is
         ``value``: its domain set and its constant at `start` (or ``value``)."""
-        domain = self.domain or _DOMAIN_OF.get(name.rpartition(".")[2], "positive")
+        last = name.rpartition(".")[2]
+        if self.domain is None and last in _NO_DEFAULT:
+            raise ValueError(
+                f"learned parameter {name!r}: give its domain, e.g. "
+                f"Learned(..., domain='positive'); none of {sorted(DOMAINS)} is "
+                "implied for it"
+            )
+        domain = self.domain or _DOMAIN_OF.get(last, "positive")
         start = float(value) if self.start is None else float(self.start)
+        if math.isnan(start):
+            raise ValueError(
+                f"learned parameter {name!r} is not set in the experiment; give "
+                "Learned(start=...)"
+            )
+        if domain == "unit" and start in (0.0, 1.0):
+            start = min(max(start, _EDGE), 1.0 - _EDGE)
+        elif domain == "nonnegative" and start == 0.0:
+            start = _EDGE
         if not (math.isfinite(start) and _inside(domain, start)):
             raise ValueError(
                 f"learned parameter {name!r}: start value {start:g} is outside "
                 f"its domain {DOMAINS[domain]}; give Learned(start=...) inside it "
                 "(or domain=...)"
             )
-        raw = as_float(_from_domain(domain, start))
+        # strongly typed: a weak type turns strong after the first optimiser
+        # update, and a jitted training loop would compile twice
+        raw = jnp.asarray(_from_domain(domain, start), jnp.result_type(float))
         new = eqx.tree_at(lambda m: m.raw, self, raw, is_leaf=lambda x: x is None)
         return _set_static(new, domain=domain)
 
@@ -372,7 +402,14 @@ class Hybrid(eqx.Module):
                     f"offered by scene {type(experiment.scene).__name__}; expected "
                     f"any of {offered}"
                 )
-            paths[name] = resolve_parameter(experiment, name)
+            path = resolve_parameter(experiment, name)
+            twice = [n for n, p in paths.items() if p == path]
+            if twice:
+                raise ValueError(
+                    f"learned parameters {twice[0]!r} and {name!r} are the same "
+                    f"parameter ({path}); give it once"
+                )
+            paths[name] = path
         experiment = with_parameters(experiment, list(paths.values()))
         self.experiment = experiment
         self.learned = {

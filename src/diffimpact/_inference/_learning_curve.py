@@ -9,6 +9,7 @@ import json
 import pathlib
 
 import equinox as eqx
+import jax
 import numpy as np
 
 from .._io._data import ExperimentData, load_experiments
@@ -121,8 +122,19 @@ _FORMAT = "diffimpact-model-1"
 
 def _describe(model) -> dict:
     """The structure a saved model must match to be loaded into: its type,
-    and per learned parameter its features, kind and domain (the numbers
-    are the file's)."""
+    per learned parameter its features, kind and domain, and the whole
+    tree's structure (every static field: a restitution law, a method, the
+    solver settings) with each array's shape and dtype; the numbers are the
+    file's."""
+    leaves, treedef = jax.tree.flatten(eqx.filter(model, eqx.is_array))
+    structure = {
+        "tree": str(treedef),
+        "arrays": [f"{x.dtype}{list(x.shape)}" for x in leaves],
+    }
+    return {**_summary(model), "structure": structure}
+
+
+def _summary(model) -> dict:
     if isinstance(model, VelocityNetwork):
         return {
             "type": "VelocityNetwork",
@@ -183,9 +195,19 @@ def load_model(path, like):
         expected = _describe(like)
         if header != expected:
             diff = sorted(k for k in expected if header.get(k) != expected[k])
+            shown = [k for k in diff if k != "structure"]
+            if shown:
+                saved = {k: header.get(k) for k in shown}
+                want = {k: expected[k] for k in shown}
+                detail = f": saved {saved}, like {want}"
+            else:
+                detail = (
+                    " (a static field such as the restitution law, the method "
+                    "or the solver settings, or an array's shape: build `like` "
+                    "as the saved model was built)"
+                )
             raise ValueError(
                 f"{path}: the saved model's structure differs from `like` in "
-                f"{diff}: saved { ({k: header.get(k) for k in diff}) }, like "
-                f"{ ({k: expected[k] for k in diff}) }"
+                f"{diff}{detail}"
             )
         return eqx.tree_deserialise_leaves(f, like)

@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import dataclasses
 import time
+import warnings
 
 import equinox as eqx
 import jax
@@ -68,13 +69,19 @@ class TrainResult:
 
     def median_error(self, rows=None) -> float:
         """The median relative error over ``rows`` (default: every row used
-        in neither training nor validation; all rows if there are none)."""
+        in neither training nor validation; a ValueError if there are none).
+        A row whose solve failed counts as an infinite error: a model is
+        never judged better for failing on the hard rows."""
         if rows is None:
             used = np.concatenate([self.train_rows, self.validation_rows])
             rows = np.setdiff1d(np.arange(len(self.errors)), used)
             if len(rows) == 0:
-                rows = np.arange(len(self.errors))
-        return float(np.nanmedian(self.errors[np.asarray(rows)]))
+                raise ValueError(
+                    "median_error: every row was used in training or validation; "
+                    "give the rows to judge (train with rows= a subset)"
+                )
+        e = self.errors[np.asarray(rows)]
+        return float(np.median(np.where(np.isnan(e), np.inf, e)))
 
 
 def _rows_of(data: ExperimentData, idx) -> dict:
@@ -115,12 +122,20 @@ def relative_errors(predicted, measured, scale, w=None) -> np.ndarray:
     body's velocities (weights ``w``); else the root-mean-square residual
     in units of each quantity's scale."""
     predicted, measured = np.asarray(predicted), np.asarray(measured)
+    measured_ok = np.isfinite(measured)
+    # A row with a measured quantity it does not predict (a failed solve)
+    # has no error (NaN), never a partial or zero one.
+    failed = np.any(measured_ok & ~np.isfinite(predicted), axis=1)
     if w is not None:
         num = np.nansum(w * (predicted - measured) ** 2, axis=1)
         den = np.nansum(w * measured**2, axis=1)
-        return np.sqrt(num / den)
-    r = (predicted - measured) / scale
-    return np.sqrt(np.nanmean(r**2, axis=1))
+        out = np.sqrt(num / den)
+    else:
+        r = (predicted - measured) / scale
+        with warnings.catch_warnings():  # a failed row: NaN, set below
+            warnings.simplefilter("ignore", RuntimeWarning)
+            out = np.sqrt(np.nanmean(r**2, axis=1))
+    return np.where(failed, np.nan, out)
 
 
 def evaluate(model, data, rows=None, quantities=None, scale=None) -> np.ndarray:
@@ -138,13 +153,20 @@ def evaluate(model, data, rows=None, quantities=None, scale=None) -> np.ndarray:
     return relative_errors(y, meas, scale, weights(model, quantities))
 
 
-def _quantities(model, data) -> tuple[str, ...]:
+def _predicted_names(model, data) -> tuple[str, ...]:
     if isinstance(model, VelocityNetwork):
         return model.outputs
     first = {q: v[:1] for q, v in data.inputs.items()}
     shapes = jax.eval_shape(
         jax.vmap(lambda r: model.predict(r, throw=False)), _rows_of_np(first)
     )
+    return tuple(q for q in shapes if q != "result")
+
+
+def _quantities(model, data) -> tuple[str, ...]:
+    if isinstance(model, VelocityNetwork):
+        return model.outputs
+    shapes = _predicted_names(model, data)
     out = tuple(q for q in data.outputs if q in shapes)
     if not out:
         raise ValueError(
@@ -156,6 +178,14 @@ def _quantities(model, data) -> tuple[str, ...]:
 
 def _rows_of_np(inputs):
     return {q: jnp.asarray(v) for q, v in inputs.items()}
+
+
+def _has_penalty(model) -> bool:
+    """Whether the regularisation weighs anything: a learned function that
+    is not a constant."""
+    return isinstance(model, Hybrid) and any(
+        fn.correction is not None for fn in model.learned.values()
+    )
 
 
 def _trainable(model):
@@ -217,19 +247,50 @@ def train(
         )
     if not 0.0 <= validation < 1.0:
         raise ValueError(f"validation must lie in [0, 1), got {validation}")
+    for name, value in (
+        ("steps", steps),
+        ("patience", patience),
+        ("check_every", check_every),
+    ):
+        if isinstance(value, bool) or not isinstance(value, int) or value < 1:
+            raise ValueError(f"{name} must be an integer >= 1, got {value!r}")
+    if not (np.isfinite(learning_rate) and learning_rate > 0):
+        raise ValueError(f"learning_rate must be > 0, got {learning_rate}")
     if isinstance(model, Hybrid):
         check_rows(model.experiment, data.inputs, data.path, data.lines, None)
-    rows = np.arange(data.n) if rows is None else np.asarray(rows, int)
+    else:
+        bad = [q for q in model.inputs if not np.all(np.isfinite(data.inputs[q]))]
+        if bad:
+            raise ValueError(f"{data.path}: input column(s) {bad} hold NaN or inf")
+    if rows is None:
+        rows = np.arange(data.n)
+    else:
+        given = np.asarray(rows)
+        if given.dtype == bool or given.dtype.kind not in "iu":
+            raise ValueError(
+                f"rows: expected integer row indices, got dtype {given.dtype} "
+                "(for a boolean mask, pass np.nonzero(mask)[0])"
+            )
+        rows = given
     if rows.ndim != 1 or len(rows) < 2 or rows.min() < 0 or rows.max() >= data.n:
         raise ValueError(
             f"rows: expected at least 2 row indices in [0, {data.n}), got {rows}"
         )
+    if len(np.unique(rows)) != len(rows):
+        raise ValueError("rows: a row index is given twice")
     quantities = tuple(quantities or _quantities(model, data))
     unknown = [q for q in quantities if q not in data.outputs]
     if unknown:
         raise ValueError(
             f"{data.path}: quantities {unknown} are not measured in the file "
             f"(it measures {sorted(data.outputs)})"
+        )
+    predicted = _predicted_names(model, data)
+    missing = [q for q in quantities if q not in predicted]
+    if missing:
+        raise ValueError(
+            f"quantities {missing} are not predicted by the model (it predicts "
+            f"{sorted(predicted)})"
         )
     rng = np.random.default_rng(seed)
     shuffled = rng.permutation(rows)
@@ -254,8 +315,8 @@ def train(
     val_batch = _padded(data, val, quantities) if len(val) else None
     loss0 = float(_batch_loss(model, train_batch, quantities, scale))
     lambdas = np.atleast_1d(np.asarray(regularisation, float))
-    if len(val) == 0:
-        lambdas = lambdas[:1]
+    if len(val) == 0 or not _has_penalty(model):
+        lambdas = lambdas[:1]  # nothing to choose on, or nothing it weighs
     if np.any(lambdas < 0) or not np.all(np.isfinite(lambdas)):
         raise ValueError(f"regularisation must be >= 0, got {regularisation}")
     best = None
@@ -273,7 +334,14 @@ def train(
         losses[float(lam)] = out[1]
         if best is None or out[1] < best[1]:
             best = (*out, float(lam))
-    trained, _, n_steps, history, lam = best
+    trained, best_loss, n_steps, history, lam = best
+    if not np.isfinite(best_loss):
+        raise RuntimeError(
+            f"{data.path}: training never reached a finite loss (last training "
+            f"loss {history[-1][1] if len(history) else float('nan'):g}); check "
+            "the rows' inputs and outputs for NaN, and the learning rate "
+            f"({learning_rate})"
+        )
     errors, failed = _all_errors(trained, data, quantities, np.asarray(scale))
     return TrainResult(
         model=trained,
@@ -302,14 +370,22 @@ def _all_errors(model, data, quantities, scale):
     return errors, np.nonzero(~ok)[0]
 
 
+# The cost of a measured quantity in a row whose solve failed, in squared
+# noise units: a miss by a thousand standard deviations.  Constant, so it
+# adds no gradient, but early stopping and the choice of the
+# regularisation never prefer a model for failing on the hard rows.
+_FAILED_COST = 1e6
+
+
 def _data_loss(model, rows, meas, weight, quantities, scale):
     """Mean squared scaled residual over the rows of positive ``weight``
     (0 marks the padding of `_padded`) and their measured quantities."""
     y, ok = _predict_rows(model, rows, quantities)
-    r = (y - meas) / scale
-    use = jnp.isfinite(meas) & ok[:, None] & (weight[:, None] > 0)
-    r = jnp.where(use, r, 0.0)
-    return jnp.sum(r**2) / jnp.maximum(jnp.sum(use), 1)
+    measured = jnp.isfinite(meas) & (weight[:, None] > 0)
+    good = measured & ok[:, None] & jnp.isfinite(y)
+    r = jnp.where(good, (y - meas) / scale, 0.0)
+    cost = jnp.sum(r**2) + _FAILED_COST * jnp.sum(measured & ~good)
+    return cost / jnp.maximum(jnp.sum(measured), 1)
 
 
 def _loss(params, static, rows, meas, weight, quantities, scale, lam):
@@ -329,6 +405,9 @@ def _run(params, static, opt_state, batch, quantities, scale, lam, optimiser, n)
         value, grad = jax.value_and_grad(_loss)(
             p, static, rows, meas, weight, quantities, scale, lam
         )
+        # a non-finite gradient (one row's solve at its edge) skips nothing
+        # else: its entries are dropped, the step goes on
+        grad = jax.tree.map(lambda g: jnp.where(jnp.isfinite(g), g, 0.0), grad)
         updates, s = optimiser.update(grad, s, p)
         return optax.apply_updates(p, updates), s, value
 
