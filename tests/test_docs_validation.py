@@ -104,6 +104,7 @@ EXTENDED_ONLY = {
     "tests/test_stress.py::test_normal_impacts",
     "tests/test_stress.py::test_normal_impacts_float32",
     "tests/test_stress.py::test_sphere_on_incline_with_friction",
+    "tests/test_sweep.py::test_gradient_through_a_sweep_matches_central_differences",
     "tests/test_tangential.py::test_exact_gradients_match_ode",
 }
 
