@@ -64,7 +64,6 @@ EXTENDED_ONLY = {
     "tests/test_collinear.py::test_gradient_through_calibrated_law",
     "tests/test_extending.py::test_user_law_simulates_differentiates_and_fits",
     "tests/test_extending.py::test_user_planar_body_fits_from_a_file",
-    "tests/test_extending.py::test_user_planar_body_simulates_and_differentiates",
     "tests/test_fit.py::test_ball_prism_real_data",
     "tests/test_fit.py::test_noiseless_recovery_of_four_parameters",
     "tests/test_fit_rows.py::test_blocks_in_any_order_give_the_rows_predictions",
@@ -175,9 +174,14 @@ def test_no_claim_depends_only_on_the_extended_tier(request):
 # Rows whose Measured column is "—" (a bound with no measurement beside it):
 # issue 42 asks for none.  The count may only fall; lower it when a row gains
 # its measurement.
-ROWS_WITHOUT_MEASUREMENT = 85
+ROWS_WITHOUT_MEASUREMENT = 84
 # Rows whose bound is more than 10 times the measured value, and why.
 WIDE_BOUNDS = {
+    "tests/test_extending.py::test_user_planar_body_differentiates": (
+        "the gradient of a discretised planar solve at the default rtol moves "
+        "with its step sequence on another CPU: 1.3e-6 measured for the "
+        "planar body under rounding-level changes of its input"
+    ),
     "tests/test_body.py::test_gradient_through_a_planar_body": (
         "the gradient of the discretised solve moves with its step sequence: "
         "1.4e-7 from the differences at worst over rounding-level changes of "

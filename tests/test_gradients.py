@@ -11,6 +11,8 @@ is (nearly) zero, as it is for the peak force with respect to an unloading
 constant: "relative" error of a zero derivative is meaningless.
 """
 
+import functools
+
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -48,19 +50,31 @@ def _outputs(p, law, method):
     return jnp.stack([getattr(r, o) for o in OUTPUTS])
 
 
+# Every case has the same tree of parameters: one unravel, and one compiled
+# Jacobian (per method) and quadrature batch serve them all (eager, each case
+# compiled and dispatched its own).
+_UNRAVEL = ravel_pytree(_params(1.0, 300e6))[1]
+
+
+@functools.partial(jax.jit, static_argnums=1)
+def _jacobian(theta, method):  # (outputs, params)
+    return jax.jacrev(lambda th: _outputs(*_UNRAVEL(th), method))(theta)
+
+
+@jax.jit
+def _quadrature_rows(thetas):
+    return jax.vmap(lambda th: _outputs(*_UNRAVEL(th), "quadrature"))(thetas)
+
+
 def _check(velocity, yield_strength, method="smooth", tol=1e-5):
     p, law = _params(velocity, yield_strength)
-    theta0, unravel = ravel_pytree((p, law))
-
-    def f(theta, method):
-        return _outputs(*unravel(theta), method)
-
-    jac = jax.jacrev(lambda th: f(th, method))(theta0)  # (outputs, params)
+    theta0 = ravel_pytree((p, law))[0]
+    jac = _jacobian(theta0, method)
     h = 1e-6 * jnp.abs(theta0)
-    eye = jnp.eye(theta0.size)
-    fq = jax.vmap(lambda dth: f(theta0 + dth, "quadrature"))
-    fd = (fq(eye * h[:, None]) - fq(-eye * h[:, None])).T / (2 * h)
-    f0 = f(theta0, "quadrature")
+    steps = jnp.eye(theta0.size) * h[:, None]
+    rows = _quadrature_rows(jnp.concatenate([theta0 + steps, theta0 - steps]))
+    fd = (rows[: theta0.size] - rows[theta0.size :]).T / (2 * h)
+    f0 = _quadrature_rows(theta0[None])[0]
     assert np.all(np.isfinite(np.asarray(jac)))
     scale = jnp.maximum(jnp.abs(fd), jnp.abs(f0)[:, None] / jnp.abs(theta0)[None, :])
     # An output that is identically 0 (d_r of an elastic impact) must have an

