@@ -37,11 +37,18 @@ from ._root import newton_root
 def _clenshaw(coef, tau):
     """``sum_k coef_k T_k(2 tau - 1)`` by Clenshaw's recurrence: a polynomial,
     so its derivative stays finite at ``tau = 0`` and 1 (the ``cos(k
-    arccos)`` form has an infinite one there)."""
+    arccos)`` form has an infinite one there).  A scan, not a Python loop:
+    the series is evaluated at every Gauss node and in every Newton step of
+    a segment, and the unrolled recurrence (24 terms) was over a third of a
+    planar fit's traced program, so of its compile time."""
     y = 2.0 * tau - 1.0
-    b1 = b2 = jnp.zeros_like(y)
-    for c in coef[:0:-1]:
-        b1, b2 = c + 2.0 * y * b1 - b2, b1
+
+    def step(carry, c):
+        b1, b2 = carry
+        return (c + 2.0 * y * b1 - b2, b1), None
+
+    zero = jnp.zeros_like(y)
+    (b1, b2), _ = jax.lax.scan(step, (zero, zero), coef[:0:-1])
     return coef[0] + y * b1 - b2
 
 
