@@ -3,8 +3,9 @@ an experiment file: full-batch Adam through the solve, early stopping on a
 validation split, the regularisation chosen on it, per-row results.
 
 The loss is the mean over rows and measured quantities of the squared
-residual in units of the quantity's noise (its ``sigma_`` column, else the
-spread of the column over the training rows), plus ``lambda`` times the mean
+residual in units of the quantity's noise (each row's own ``sigma_`` value,
+as `fit` weighs it, where the file gives one for every trained quantity; else
+the spread of the column over the training rows), plus ``lambda`` times the mean
 squared correction of the learned functions (`Hybrid.penalty`), ``lambda``
 relative to the loss of the untrained model (so the same values suit any
 file).  Among the ``regularisation`` values given, the one with the lowest
@@ -299,7 +300,8 @@ def train(
     if len(tr) < 1:
         raise ValueError("train: no training rows left after the validation split")
     meas_tr = _outputs_of(data, quantities, tr)
-    if all(q in data.sigmas for q in quantities):
+    per_row = all(q in data.sigmas for q in quantities)
+    if per_row:
         scale = np.array([np.nanmedian(data.sigmas[q][tr]) for q in quantities])
     else:
         scale = np.nanstd(np.asarray(meas_tr), axis=0)
@@ -311,8 +313,8 @@ def train(
     else:
         model = eqx.filter_jit(type(model).with_scaling)(model, rows_tr)
     scale = jnp.asarray(scale)
-    train_batch = _padded(data, tr, quantities)
-    val_batch = _padded(data, val, quantities) if len(val) else None
+    train_batch = _padded(data, tr, quantities, scale, per_row)
+    val_batch = _padded(data, val, quantities, scale, per_row) if len(val) else None
     loss0 = float(_batch_loss(model, train_batch, quantities, scale))
     lambdas = np.atleast_1d(np.asarray(regularisation, float))
     if len(val) == 0 or not _has_penalty(model):
@@ -377,34 +379,34 @@ def _all_errors(model, data, quantities, scale):
 _FAILED_COST = 1e6
 
 
-def _data_loss(model, rows, meas, weight, quantities, scale):
+def _data_loss(model, rows, meas, weight, rel, quantities, scale):
     """Mean squared scaled residual over the rows of positive ``weight``
-    (0 marks the padding of `_padded`) and their measured quantities."""
+    (0 marks the padding of `_padded`) and their measured quantities; ``rel``
+    rescales each residual to its own row's noise (`_row_weights`)."""
     y, ok = _predict_rows(model, rows, quantities)
     measured = jnp.isfinite(meas) & (weight[:, None] > 0)
     good = measured & ok[:, None] & jnp.isfinite(y)
-    r = jnp.where(good, (y - meas) / scale, 0.0)
+    r = jnp.where(good, rel * (y - meas) / scale, 0.0)
     cost = jnp.sum(r**2) + _FAILED_COST * jnp.sum(measured & ~good)
     return cost / jnp.maximum(jnp.sum(measured), 1)
 
 
-def _loss(params, static, rows, meas, weight, quantities, scale, lam):
+def _loss(params, static, batch, quantities, scale, lam):
+    rows, _, weight, _ = batch
     model = eqx.combine(params, static)
     penalty = jax.vmap(model.penalty)(rows)
     penalty = jnp.sum(weight * penalty) / jnp.sum(weight)
-    return _data_loss(model, rows, meas, weight, quantities, scale) + lam * penalty
+    return _data_loss(model, *batch, quantities, scale) + lam * penalty
 
 
 @eqx.filter_jit
 def _run(params, static, opt_state, batch, quantities, scale, lam, optimiser, n):
     """``n`` Adam steps in one compiled loop."""
-    rows, meas, weight = batch
 
     def body(_, carry):
         p, s, _ = carry
-        value, grad = jax.value_and_grad(_loss)(
-            p, static, rows, meas, weight, quantities, scale, lam
-        )
+        loss = jax.value_and_grad(_loss)
+        value, grad = loss(p, static, batch, quantities, scale, lam)
         # a non-finite gradient (one row's solve at its edge) skips nothing
         # else: its entries are dropped, the step goes on
         grad = jax.tree.map(lambda g: jnp.where(jnp.isfinite(g), g, 0.0), grad)
@@ -416,15 +418,14 @@ def _run(params, static, opt_state, batch, quantities, scale, lam, optimiser, n)
 
 @eqx.filter_jit
 def _batch_loss(model, batch, quantities, scale):
-    rows, meas, weight = batch
-    return _data_loss(model, rows, meas, weight, quantities, scale)
+    return _data_loss(model, *batch, quantities, scale)
 
 
-def _padded(data, idx, quantities):
-    """Rows ``idx`` as a batch ``(inputs, measured, weight)`` padded to the
-    next power of two (at least 64) with copies of the first row of weight
-    0: training sets of different sizes share one compiled program per
-    bucket instead of compiling one each."""
+def _padded(data, idx, quantities, scale, per_row):
+    """Rows ``idx`` as a batch ``(inputs, measured, weight, rel)`` padded to
+    the next power of two (at least 64) with copies of the first row of
+    weight 0: training sets of different sizes share one compiled program
+    per bucket instead of compiling one each.  ``rel``: `_row_weights`."""
     size = max(64, 1 << (len(idx) - 1).bit_length())
     full = np.concatenate([idx, np.full(size - len(idx), idx[0])])
     weight = np.concatenate([np.ones(len(idx)), np.zeros(size - len(idx))])
@@ -432,7 +433,25 @@ def _padded(data, idx, quantities):
         _rows_of(data, full),
         _outputs_of(data, quantities, full),
         jnp.asarray(weight),
+        _row_weights(data, quantities, full, scale, per_row),
     )
+
+
+def _row_weights(data, quantities, idx, scale, per_row):
+    """``scale_q / sigma_rq`` per row and quantity, so that each residual is
+    in units of its own row's noise, as `fit` weighs it (a file's ``sigma_``
+    columns may differ from row to row: a precise measurement weighs more);
+    1 where the file gives no sigma for every trained quantity (``per_row``
+    False), or for a row whose sigma is missing."""
+    cols = []
+    for k, q in enumerate(quantities):
+        if not per_row:
+            cols.append(np.ones(len(idx)))
+            continue
+        s = np.asarray(data.sigmas[q][idx], float)
+        ok = np.isfinite(s) & (s > 0)
+        cols.append(np.where(ok, float(scale[k]) / np.where(ok, s, 1.0), 1.0))
+    return jnp.asarray(np.stack(cols, axis=1))
 
 
 def _train_one(model, train_batch, val_batch, quantities, scale, lam, settings):
