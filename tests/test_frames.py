@@ -68,6 +68,9 @@ def test_a_bad_dataframe_gets_the_files_message(tmp_path):
         for row in (1, 2, 3):
             want = want.replace(f"line {row + 1},", f"row {row},")
         assert str(from_frame.value) == want
+    # a missing value of any kind (NaN, None, pandas' NA) is an empty cell
+    na = good.assign(cor_tangential=pd.array([0.578, None, 0.816], dtype="Float64"))
+    assert np.isnan(di.load_experiments(na).outputs["cor_tangential"][1])
 
 
 def test_pandas_is_imported_only_when_used():

@@ -159,7 +159,8 @@ def cross_validate(
 ) -> CrossValidation:
     """Fit each model on a random part of ``data`` and predict the rest.
 
-    **Arguments:** `data`: an experiment CSV path or `ExperimentData`;
+    **Arguments:** `data`: an experiment CSV path, `ExperimentData` or a
+    pandas DataFrame with the file's columns;
     `models`: name -> `Experiment` (its parameters are the start values);
     `free`: the names to fit, one list for every model or name -> list;
     `holdout`: fraction of the rows held out, in (0, 1) (at least one row

@@ -24,6 +24,7 @@ import csv
 import dataclasses
 import math
 import os
+import sys
 
 import numpy as np
 
@@ -194,9 +195,11 @@ class ExperimentData:
       never used as inputs;
     - `declarations`: the body a planar-body file declares above its header
       (`Declarations`, in SI units), or None;
-    - `provenance`: the ``#`` lines before the header; `path`: the file.
+    - `provenance`: the ``#`` lines before the header; `path`: the file
+      (``"DataFrame"`` for a DataFrame).
     - `lines`: the line number in the file of each row, shape ``(n,)``: every
-      message, residual file and plot names a row by it.
+      message, residual file and plot names a row by it (None for a
+      DataFrame: rows are named ``row N``, from 1).
     """
 
     scene: str | None
@@ -251,7 +254,7 @@ def _clockwise(provenance: list[str], path: str) -> bool:
 
 def load_experiments(path) -> ExperimentData:
     """Read and validate an experiment CSV (schema in this module's docstring),
-    or a pandas DataFrame with the same column names (`read_frame`).
+    or a pandas DataFrame with the same column names and units.
 
     Raises `DataError` (a ``ValueError``) naming the file, the row (the
     line number in the file) and the column for: an empty file, no header or no
@@ -271,6 +274,14 @@ def load_experiments(path) -> ExperimentData:
     the scenes.  Lines ``body:``, ``shape:``, ``body_material:`` and
     ``flat_material:`` declare a planar body (`read_declarations`), read
     and checked here.
+
+    A pandas DataFrame goes through the same checks, cell by cell as the
+    file's text (a float as its shortest round-trip text; NaN, None or ""
+    as an empty cell): the same numbers to the bit and the same messages,
+    with ``DataFrame, row N`` (from 1, in the frame's order; the index is
+    not read) for the file and line; ``path`` is then ``"DataFrame"`` and
+    ``lines`` None.  ``frame.attrs["provenance"]`` (one note a line) stands
+    for the ``#`` lines above a file's header.
     """
     if is_dataframe(path):
         return read_frame(path)
@@ -352,9 +363,10 @@ def read_frame(frame, *, require_output: bool = True) -> ExperimentData:
     header: the notes, ``angles: clockwise`` and a planar body's
     declarations.  `require_output`: False for rows to predict (no measured
     column needed)."""
+    isna = sys.modules["pandas"].isna  # (a DataFrame: pandas is imported)
     header = [str(h).strip() for h in frame.columns]
     rows = [
-        (i + 1, [_text(v) for v in values])
+        (i + 1, [_text(v, isna) for v in values])
         for i, values in enumerate(frame.itertuples(index=False, name=None))
     ]
     notes = frame.attrs.get("provenance", "") if hasattr(frame, "attrs") else ""
@@ -365,12 +377,12 @@ def read_frame(frame, *, require_output: bool = True) -> ExperimentData:
     return _parse(source, header, rows, provenance, preamble, None, require_output)
 
 
-def _text(value) -> str:
+def _text(value, isna) -> str:
     """A DataFrame cell as the text a CSV file would hold."""
-    if value is None:
-        return ""
     if isinstance(value, str):
         return value
+    if value is None or isna(value) is True:  # NaN, None, pd.NA, NaT
+        return ""
     if isinstance(value, bool | np.bool_):
         return str(value)  # refused as not a number, as in a file
     try:
