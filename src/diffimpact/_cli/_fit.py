@@ -4,10 +4,12 @@
 
 prints the estimates with standard errors and correlations (a progress bar
 while it works) and writes, into DIR: ``fit.json`` (parameters, covariance,
-statistics), ``residuals.csv`` (measured, predicted, weighted residual per row
-and output), ``fit.png`` (measured vs predicted, residuals) and ``loop.png``
-(normal force against interference for the median row).  Nothing in DIR is
-overwritten without ``--force``; the check happens before the fit starts.
+statistics), ``residuals.csv`` (one line per row: its inputs, and measured,
+predicted, sigma and weighted residual per output, every column's unit in its
+name and in the file's units), ``fit.png`` (measured vs predicted, residuals)
+and ``loop.png`` (normal force against interference for the median row).
+Nothing in DIR is overwritten without ``--force``; the check happens before
+the fit starts.
 """
 
 from __future__ import annotations
