@@ -168,6 +168,22 @@ def test_predict_names_a_bad_row(rigid):
         di.predict(experiment, rows.assign(angle_deg=[-1.0, 3.0]))
 
 
+def test_predict_a_failed_row():
+    """A row outside the contact model: with ``throw=False`` NaN and its
+    code, the other rows kept; else the solve's own error, naming the row."""
+    experiment = di.Experiment.default("normal_impact")  # quadrature: no ODE
+    rows = pd.DataFrame({"impact_velocity_m_s": [1.0, 3000.0]})
+    out = di.predict(experiment, rows, throw=False)
+    assert [di.result_name(int(c)) for c in out["result"]] == [
+        "successful",
+        "outside_model",
+    ]
+    assert np.isfinite(out["predicted_cor_normal"][0])
+    assert np.isnan(out["predicted_cor_normal"][1])
+    with pytest.raises(di.OutsideModelError, match=r"^DataFrame, row 2: "):
+        di.predict(experiment, rows)
+
+
 def test_residuals_csv_names_every_unit(rigid, tmp_path):
     """``diffimpact fit``'s residuals.csv: one line per row, the inputs in
     the file's units (the angle in degrees, as the file gives it)."""
