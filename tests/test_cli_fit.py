@@ -37,8 +37,26 @@ def test_fit_writes_outputs_and_never_overwrites(tmp_path, capsys):
     assert prov["versions"]["diffimpact"] == di.__version__
     assert prov["versions"]["jax"] and prov["command"][0] == "diffimpact"
     assert prov["data_sha256"] == hashlib.sha256(data.read_bytes()).hexdigest()
+    # residuals.csv: one line per row, every column's unit in its name, in the
+    # file's units (the contact time in us, as the file gives it)
     rows = (out / "residuals.csv").read_text().splitlines()
-    assert rows[0].startswith("line,impact_velocity,quantity") and len(rows) == 7
+    assert rows[0].split(",") == [
+        "line",
+        "impact_velocity_m_s",
+        "measured_cor_normal",
+        "predicted_cor_normal",
+        "sigma_cor_normal",
+        "weighted_residual_cor_normal",
+        "measured_contact_time_us",
+        "predicted_contact_time_us",
+        "sigma_contact_time_us",
+        "weighted_residual_contact_time",
+    ]
+    assert len(rows) == 4
+    table = np.array([[float(x) for x in r.split(",")] for r in rows[1:]])
+    np.testing.assert_array_equal(table[:, 0], [3, 4, 5])  # the file's lines
+    np.testing.assert_array_equal(table[:, 6], [78.10, 59.96, 50.94])
+    assert np.all(np.abs(table[:, 7] / table[:, 6] - 1) < 0.05)  # predicted, us
     assert (out / "fit.png").stat().st_size > 0 and (out / "loop.png").exists()
     before = (out / "fit.json").read_text()
     assert main(argv) == 2  # refuses, before fitting
@@ -93,8 +111,14 @@ def test_fit_holdout_compares_the_model_with_the_rigid_laws(tmp_path, capsys):
     assert set(rms) == {"jackson-green", "newton", "poisson", "energetic"}
     assert rms["jackson-green"][0] < 0.01 < 0.1 < rms["energetic"][0]
     rows = (out / "holdout.csv").read_text().splitlines()
-    assert rows[0] == "line,model,quantity,measured_si,predicted_si"
-    assert len(rows) == 1 + 5 * 4 * 3  # rows x models x quantities
+    # per quantity compared, its measured and predicted columns, named with
+    # the file's unit
+    assert rows[0] == (
+        "line,model,measured_cor_normal,predicted_cor_normal,"
+        "measured_cor_tangential,predicted_cor_tangential,"
+        "measured_angular_velocity_rad_s,predicted_angular_velocity_rad_s"
+    )
+    assert len(rows) == 1 + 5 * 4  # rows x models
     assert (out / "holdout.png").stat().st_size > 10_000
     assert main(argv + ["--out", str(out)]) == 2  # never over its own files
     assert "holdout.csv" in capsys.readouterr().err

@@ -182,6 +182,24 @@ def test_outputs_are_written_and_never_overwritten(normal_posterior, tmp_path):
     assert "R-hat" in normal_posterior.summary()
     assert len(normal_posterior.plot_corner(truths=list(TRUTH.values())).axes) == 4
     assert len(normal_posterior.plot_predictive().axes) == 2
+    # pandas and ArviZ (tests/test_frames.py checks them on a made-up result)
+    draws = normal_posterior.to_dataframe()
+    np.testing.assert_array_equal(draws["yield_strength"], rows["yield_strength"])
+    az = pytest.importorskip("arviz")
+    data = normal_posterior.to_arviz()
+    assert isinstance(data, az.InferenceData)
+    np.testing.assert_array_equal(
+        data.posterior["youngs_modulus"], normal_posterior.samples[..., 1]
+    )
+    stats = data.sample_stats
+    assert stats["tree_depth"].shape == (2, 500) and stats["tree_depth"].min() >= 1
+    assert np.all(stats["n_steps"] >= 1) and np.all(np.isfinite(stats["energy"]))
+    np.testing.assert_array_equal(stats["diverging"], normal_posterior.divergent)
+    # the file's units: contact times in us, rows by their line
+    assert set(data.observed_data) == {"contact_time_us", "cor_normal"}
+    pp = data.posterior_predictive["contact_time_us"]
+    assert pp.dims == ("chain", "draw", "row") and pp.shape[0] == 2
+    assert 30 < float(pp.median()) < 300  # microseconds
 
 
 def test_an_unidentifiable_pair_is_reported(noisy):

@@ -4,15 +4,16 @@
 
 prints the estimates with standard errors and correlations (a progress bar
 while it works) and writes, into DIR: ``fit.json`` (parameters, covariance,
-statistics), ``residuals.csv`` (measured, predicted, weighted residual per row
-and output), ``fit.png`` (measured vs predicted, residuals) and ``loop.png``
-(normal force against interference for the median row).  Nothing in DIR is
-overwritten without ``--force``; the check happens before the fit starts.
+statistics), ``residuals.csv`` (one line per row: its inputs, and measured,
+predicted, sigma and weighted residual per output, every column's unit in its
+name and in the file's units), ``fit.png`` (measured vs predicted, residuals)
+and ``loop.png`` (normal force against interference for the median row).
+Nothing in DIR is overwritten without ``--force``; the check happens before
+the fit starts.
 """
 
 from __future__ import annotations
 
-import csv
 import dataclasses
 import json
 import os
@@ -20,7 +21,14 @@ import sys
 
 from .._io._data import parse_number
 from ._files import integer, number, open_new, writable_folder
-from ._outputs import plot_fit, plot_loop, provenance, save_figure, write_residuals
+from ._outputs import (
+    plot_fit,
+    plot_loop,
+    provenance,
+    save_figure,
+    write_residuals,
+    write_table,
+)
 
 _OUTPUT_FILES = ("fit.json", "residuals.csv", "fit.png", "loop.png")
 _HOLDOUT_FILES = ("holdout.csv", "holdout.png")
@@ -484,14 +492,7 @@ def _cross_validate(args, data, experiment, free, own_options, out):
     )
     print("held-out RMS error (SI units):")
     print(cv.table())
-    with open_new(os.path.join(out, "holdout.csv"), args.force) as fh:
-        w = csv.writer(fh)
-        w.writerow(["line", "model", "quantity", "measured_si", "predicted_si"])
-        for i, line in enumerate(cv.test_lines):
-            for model in cv.models:
-                for j, q in enumerate(cv.quantities):
-                    m, p = cv.measured[i, j], cv.predicted[model][i, j]
-                    w.writerow([int(line), model, q, repr(float(m)), repr(float(p))])
+    write_table(cv.per_row(), os.path.join(out, "holdout.csv"), args.force)
     fig = cv.plot()
     save_figure(fig, os.path.join(out, "holdout.png"), args.force)
     return cv.fits[args.law]

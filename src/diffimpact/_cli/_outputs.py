@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import numbers
+
 from ._files import open_new, versions
 
 
@@ -24,28 +26,32 @@ def provenance(args) -> dict:
 
 
 def write_residuals(result, path, force=False) -> None:
+    """One line per row of the data (`FitResult.per_row`): every column's
+    unit in its name, in the units of the data file's columns."""
+    write_table(result.per_row(), path, force)
+
+
+def write_table(table: dict, path, force=False) -> None:
+    """A dict of equally long columns as a CSV file (never over a user's
+    file unless `force`)."""
     import csv
 
     with open_new(path, force) as fh:
         w = csv.writer(fh)
-        w.writerow(
-            ["line", *result.inputs, "quantity", "measured_si", "predicted_si"]
-            + ["sigma_si", "weighted_residual"]
-        )
-        for i in range(result.measured.shape[0]):
-            for k, q in enumerate(result.quantities):
-                if result.measured[i, k] != result.measured[i, k]:  # NaN: no data
-                    continue
-                w.writerow(
-                    [_line(result, i)]
-                    + [*(repr(float(v[i])) for v in result.inputs.values()), q]
-                    + [
-                        repr(float(result.measured[i, k])),
-                        repr(float(result.predicted[i, k])),
-                        repr(float(result.sigma[i, k])),
-                        repr(float(result.residuals[i, k])),
-                    ]
-                )
+        w.writerow(list(table))
+        for i in range(len(next(iter(table.values())))):
+            w.writerow([_cell(v[i]) for v in table.values()])
+
+
+def _cell(x) -> str:
+    """An integer or a text as itself, a float as its shortest round-trip
+    text, NaN (not measured) as an empty cell."""
+    if isinstance(x, str):
+        return x
+    if isinstance(x, numbers.Integral):
+        return str(int(x))
+    x = float(x)
+    return "" if x != x else repr(x)
 
 
 def _line(result, i: int) -> int:

@@ -15,7 +15,8 @@ import dataclasses
 import jax
 import numpy as np
 
-from .._io._data import ExperimentData, load_experiments
+from .._io._data import ExperimentData, column_of, load_experiments
+from .._io._frames import optional
 from .._result import RESULTS
 from ._experiment import Experiment
 from ._fit import fit
@@ -60,6 +61,37 @@ class CrossValidation:
             note = f"  ({self.failed[m]} failed)" if self.failed[m] else ""
             rows.append(f"{m:<{w}}  {cells}{note}")
         return "\n".join(rows)
+
+    def per_row(self) -> dict[str, np.ndarray]:
+        """One entry per held-out row and model: ``line`` (the line in the
+        file; ``row``, from 1, for a DataFrame), ``model``, and per quantity
+        ``measured_<column>`` and ``predicted_<column>`` in the unit of the
+        data's column (``contact_time_us``; SI where it has none).  What
+        `to_dataframe` and the command line's ``holdout.csv`` hold."""
+        first = next(iter(self.fits.values()))
+        columns, numbered = first.columns, first.lines is not None
+        n, m = len(self.test_lines), len(self.models)
+        out = {
+            "line" if numbered else "row": np.repeat(self.test_lines, m),
+            "model": np.tile(np.asarray(self.models, dtype=object), n),
+        }
+        for j, q in enumerate(self.quantities):
+            col = column_of(q, columns)
+            out[f"measured_{col.header}"] = np.repeat(self.measured[:, j], m) / (
+                col.factor
+            )
+            out[f"predicted_{col.header}"] = (
+                np.stack(
+                    [self.predicted[k][:, j] for k in self.models], axis=1
+                ).reshape(-1)
+                / col.factor
+            )
+        return out
+
+    def to_dataframe(self):
+        """`per_row` as a pandas DataFrame (needs pandas)."""
+        pd = optional("pandas", "CrossValidation.to_dataframe")
+        return pd.DataFrame(self.per_row())
 
     def plot(self, path=None):
         """Predicted against measured on the held-out rows, one panel per
@@ -127,7 +159,8 @@ def cross_validate(
 ) -> CrossValidation:
     """Fit each model on a random part of ``data`` and predict the rest.
 
-    **Arguments:** `data`: an experiment CSV path or `ExperimentData`;
+    **Arguments:** `data`: an experiment CSV path, `ExperimentData` or a
+    pandas DataFrame with the file's columns;
     `models`: name -> `Experiment` (its parameters are the start values);
     `free`: the names to fit, one list for every model or name -> list;
     `holdout`: fraction of the rows held out, in (0, 1) (at least one row

@@ -65,7 +65,8 @@ class Experiment(eqx.Module):
         row, with the Jackson-Green law and friction ``mu = 0.2`` as start;
         for any other file, its scene's built-in experiment (`default`).
 
-        **Arguments:** `data`: a path or an `ExperimentData`."""
+        **Arguments:** `data`: a path, an `ExperimentData` or a pandas
+        DataFrame (`load_experiments`)."""
         if not isinstance(data, ExperimentData):
             data = load_experiments(data)
         if data.declarations is not None:  # (none in a file of another scene)

@@ -68,7 +68,9 @@ def fit(
 
     **Arguments:**
 
-    - `data`: a path to an experiment CSV or an `ExperimentData`.
+    - `data`: a path to an experiment CSV, an `ExperimentData`, or a pandas
+      DataFrame with the file's column names and units (read as the file is,
+      `load_experiments`).
     - `experiment`: an `Experiment`, a scene name (its defaults), or None
       (the scene named in the file, with its defaults).
     - `free`: parameter names (``"mu"``, ``"mu_v"``, ``"yield_strength"``, a law

@@ -11,6 +11,8 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from .._io._data import column_of
+from .._io._frames import optional
 from ._experiment import Experiment
 from ._fit_problem import LOOSE, check_predictions, diverged
 from ._predict import row_label
@@ -52,7 +54,9 @@ class FitResult:
       `iterations`), ``(0, 0)`` without one;
     - `singular_values`: of the Jacobian w.r.t. the unconstrained parameters;
     - `warnings`: identifiability and convergence messages;
-    - `experiment`: the `Experiment` with the fitted values in place.
+    - `experiment`: the `Experiment` with the fitted values in place;
+    - `columns`: the data's columns (`ExperimentData.columns`), whose units
+      `per_row` and `to_dataframe` write in.
     """
 
     names: tuple[str, ...]
@@ -81,10 +85,57 @@ class FitResult:
     sigma_measured: tuple[bool, ...] = ()
     lines: np.ndarray | None = None
     subsample: tuple[int, int] = (0, 0)
+    columns: dict | None = None
 
     @property
     def identifiable(self) -> bool:
         return not any("cannot determine" in w for w in self.warnings)
+
+    def per_row(self) -> dict[str, np.ndarray]:
+        """One entry per row of the data, every column's unit in its name:
+        ``line`` (the line in the file; ``row``, from 1, for a DataFrame),
+        the inputs, and per fitted quantity ``measured_<column>``,
+        ``predicted_<column>``, ``sigma_<column>`` (the weight: the file's
+        sigma, or the RMS of the measurements) and
+        ``weighted_residual_<quantity>`` (predicted - measured) / sigma;
+        NaN where a row did not measure a quantity.  ``<column>`` is the
+        data's own column name and unit (``contact_time_us``,
+        ``angle_deg``), SI (``max_force_N``) for a quantity it has none of.
+        What `to_dataframe` and the command line's ``residuals.csv`` hold."""
+        n = self.measured.shape[0]
+        out = {}
+        if self.lines is not None:
+            out["line"] = np.asarray(self.lines, dtype=int)
+        else:
+            out["row"] = np.arange(1, n + 1)
+        for q, v in self.inputs.items():
+            col = column_of(q, self.columns)
+            out[col.header] = np.asarray(v, dtype=float) / col.factor
+        for k, q in enumerate(self.quantities):
+            col = column_of(q, self.columns)
+            h = col.header
+            out[f"measured_{h}"] = self.measured[:, k] / col.factor
+            out[f"predicted_{h}"] = self.predicted[:, k] / col.factor
+            sigma = np.where(np.isnan(self.measured[:, k]), np.nan, self.sigma[:, k])
+            out[f"sigma_{h}"] = sigma / col.factor
+            out[f"weighted_residual_{q}"] = self.residuals[:, k]
+        return out
+
+    def to_dataframe(self):
+        """`per_row` as a pandas DataFrame (one row per row of the data, in
+        its order; needs pandas)."""
+        pd = optional("pandas", "FitResult.to_dataframe")
+        return pd.DataFrame(self.per_row())
+
+    def parameters_dataframe(self):
+        """The estimates as a pandas DataFrame: one row per free parameter
+        (the index), columns ``value``, ``std_error``, ``start`` (SI)."""
+        pd = optional("pandas", "FitResult.parameters_dataframe")
+        frame = pd.DataFrame(
+            {"value": self.values, "std_error": self.std_errors, "start": self.start},
+            index=pd.Index(list(self.names), name="parameter"),
+        )
+        return frame
 
     def summary(self) -> str:
         """A table of estimates with standard errors and the correlations."""
@@ -333,4 +384,5 @@ def fit_result(
         sigma_measured=tuple(q in data.sigmas for q in problem.quantities),
         lines=data.lines,
         subsample=warm or (0, 0),
+        columns=dict(data.columns),
     )

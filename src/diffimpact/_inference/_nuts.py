@@ -137,6 +137,11 @@ def nuts_chunk(
                 info.is_divergent,
                 info.acceptance_rate,
                 info.num_trajectory_expansions >= depth,
+                # what ArviZ's sample_stats hold: tree depth, leapfrog
+                # steps, the Hamiltonian's energy (its energy plot)
+                info.num_trajectory_expansions,
+                info.num_integration_steps,
+                info.energy,
             )
             return new, record
 

@@ -279,17 +279,24 @@ def posterior(
     if bar:
         bar.close()
         bar.message("diagnostics and posterior predictive...", end="\n")
-    pos, logd, div, acc, hits = (
+    pos, logd, div, acc, hits, depth, leapfrogs, energy = (
         np.concatenate([r[i] for r in records], axis=1)[
             :, num_warmup : num_warmup + num_samples
         ]
-        for i in range(5)
+        for i in range(8)
     )
     x = to_x(transforms, pos)
     seconds = time.perf_counter() - t0
+    stats = {
+        "acceptance_rate": acc,
+        "tree_depth": depth,
+        "n_steps": leapfrogs,
+        "energy": energy,
+        "reached_max_treedepth": hits,
+    }
     return posterior_result(
         (names, prior_list, transforms),
-        (x, pos, logd, div, acc, hits),
+        (x, pos, logd, div, acc, hits, stats),
         (carry, ls, forward, data, relative),
         num_warmup,
         seed,

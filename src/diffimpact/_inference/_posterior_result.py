@@ -10,7 +10,9 @@ import warnings
 import jax.numpy as jnp
 import numpy as np
 
+from .._io._data import column_of
 from .._io._files import open_new
+from .._io._frames import optional
 from .._result import RESULTS
 from ._diagnostics import ESS_PER_CHAIN_MIN, RHAT_MAX, ess_bulk, ess_tail, split_rhat
 from ._fit_result import FitResult, IdentifiabilityWarning, json_ready
@@ -51,7 +53,13 @@ class PosteriorResult:
     - `step_size`, `acceptance`, `tree_depth_hits`: per chain;
     - `predictive`: posterior predictive bands per row and quantity: ``model``
       (the prediction's 5/50/95 %) and ``replicated`` (a new measurement's,
-      noise included), each ``(3, n_rows, n_quantities)``;
+      noise included), each ``(3, n_rows, n_quantities)``, from the draws
+      ``draws`` of every chain (a few, evenly spaced), whose predictions are
+      ``model_draws`` and ``replicated_draws``, ``(chains, len(draws),
+      n_rows, n_quantities)``;
+    - `sample_stats`: per draw ``(chains, draws)``: ``acceptance_rate``,
+      ``tree_depth`` (NUTS doublings), ``n_steps`` (leapfrog steps),
+      ``energy`` (the Hamiltonian's), ``reached_max_treedepth``;
     - `fit`: the least-squares `FitResult` the chains started from;
     - `warnings`: convergence and identifiability messages; `seconds`.
     """
@@ -78,6 +86,7 @@ class PosteriorResult:
     noise: str
     warnings: tuple[str, ...]
     seconds: float
+    sample_stats: dict = dataclasses.field(default_factory=dict)
 
     @property
     def num_chains(self) -> int:
@@ -195,6 +204,103 @@ class PosteriorResult:
                         + [int(self.divergent[c, d])]
                     )
 
+    def to_dataframe(self):
+        """The draws as a pandas DataFrame, as `save` writes them: ``chain``,
+        ``draw``, one column per parameter (SI), ``log_density``,
+        ``divergent`` (needs pandas)."""
+        pd = optional("pandas", "PosteriorResult.to_dataframe")
+        c, d = np.meshgrid(
+            np.arange(self.num_chains), np.arange(self.num_samples), indexing="ij"
+        )
+        columns = {"chain": c.ravel(), "draw": d.ravel()}
+        for i, n in enumerate(self.names):
+            columns[n] = self.samples[..., i].ravel()
+        columns["log_density"] = self.log_density.ravel()
+        columns["divergent"] = self.divergent.ravel()
+        return pd.DataFrame(columns)
+
+    def to_arviz(self):
+        """The posterior as an ``arviz.InferenceData`` (needs arviz), for its
+        trace, rank and energy plots, summaries and comparisons:
+
+        - ``posterior``: one variable per free parameter, ``(chain, draw)``,
+          in SI units;
+        - ``sample_stats``: ``lp`` (the log density), ``diverging``,
+          ``acceptance_rate``, ``tree_depth``, ``n_steps``, ``energy``,
+          ``reached_max_treedepth``, ``step_size``, each ``(chain, draw)``;
+        - ``observed_data``: one variable per fitted quantity, named by the
+          data's column with its unit (``cor_normal``, ``contact_time_us``)
+          and in that unit, over ``row`` (the line in the file; the row,
+          from 1, for a DataFrame); NaN where a row did not measure it;
+        - ``posterior_predictive``: the same variables, replicated
+          measurements (noise included) at a few evenly spaced draws of
+          every chain (``predictive["draws"]``: the ``draw`` coordinate);
+        - ``constant_data``: each row's inputs, named and in units likewise.
+        """
+        az = optional("arviz", "PosteriorResult.to_arviz")
+        import xarray as xr  # arviz's own dependency
+
+        chains, draws = np.arange(self.num_chains), np.arange(self.num_samples)
+        cd = {"chain": chains, "draw": draws}
+        posterior = xr.Dataset(
+            {
+                n: (("chain", "draw"), self.samples[..., i])
+                for i, n in enumerate(self.names)
+            },
+            coords=cd,
+        )
+        stats = {
+            "lp": self.log_density,
+            "diverging": self.divergent,
+            **{k: np.asarray(v) for k, v in self.sample_stats.items()},
+            "step_size": np.broadcast_to(
+                np.asarray(self.step_size)[:, None], self.log_density.shape
+            ),
+        }
+        sample_stats = xr.Dataset(
+            {k: (("chain", "draw"), v) for k, v in stats.items()}, coords=cd
+        )
+        pp = self.predictive
+        columns = self.fit.columns
+        lines = pp["lines"]
+        n = pp["measured"].shape[0]
+        rows = {"row": np.arange(1, n + 1) if lines is None else np.asarray(lines)}
+        observed, replicated = {}, {}
+        for k, q in enumerate(pp["quantities"]):
+            col = column_of(q, columns)
+            observed[col.header] = (("row",), pp["measured"][:, k] / col.factor)
+            if "replicated_draws" in pp:
+                replicated[col.header] = (
+                    ("chain", "draw", "row"),
+                    pp["replicated_draws"][..., k] / col.factor,
+                )
+        inputs = {}
+        for q, v in pp["inputs"].items():
+            col = column_of(q, columns)
+            inputs[col.header] = (("row",), np.asarray(v) / col.factor)
+        groups = {
+            "posterior": posterior,
+            "sample_stats": sample_stats,
+            "observed_data": xr.Dataset(observed, coords=rows),
+            "constant_data": xr.Dataset(inputs, coords=rows),
+        }
+        if replicated:
+            groups["posterior_predictive"] = xr.Dataset(
+                replicated,
+                coords={"chain": chains, "draw": np.asarray(pp["draws"]), **rows},
+            )
+        return az.InferenceData(
+            attrs={
+                "inference_library": "diffimpact (NUTS by blackjax)",
+                "num_warmup": self.num_warmup,
+                "seed": self.seed,
+                "noise": self.noise,
+                "units": "posterior: SI; observed_data, posterior_predictive and "
+                "constant_data: the unit in each variable's name",
+            },
+            **groups,
+        )
+
     def plot_corner(self, truths=None):
         """Corner plot of the draws, with the least-squares 1- and 2-sigma
         ellipses; returns the figure."""
@@ -257,12 +363,17 @@ def _predictive(problem, pos, data, relative, seed) -> dict:
     prediction plus noise: the file's sigma, or for quantities without one,
     the noise factor drawn from its conditional posterior
     ``s^2 | theta ~ SS / chi^2_N``)."""
-    flat = pos.reshape(-1, pos.shape[-1])
-    # about 20,000 row predictions in all (200 draws of 100 rows, 20 of 2,000)
-    n_draws = min(_PREDICTIVE_DRAWS, max(20, 20000 // data.n), len(flat))
-    take = np.linspace(0, len(flat) - 1, n_draws).astype(int)
+    chains, draws = pos.shape[:2]
+    # about 20,000 row predictions in all (200 draws of 100 rows, 20 of 2,000),
+    # the same draws of every chain (evenly spaced), so that they keep their
+    # chain (ArviZ's posterior predictive)
+    n_draws = min(_PREDICTIVE_DRAWS, max(20, 20000 // data.n), chains * draws)
+    take = np.unique(np.linspace(0, draws - 1, max(1, n_draws // chains)).astype(int))
     # one compiled prediction (the fit's), called per draw
-    out = [_predictions(problem, jnp.asarray(u)) for u in flat[take]]
+    out = [
+        _predictions(problem, jnp.asarray(u))
+        for u in pos[:, take].reshape(-1, pos.shape[-1])
+    ]
     pred = np.stack([np.asarray(p) for p, _, _ in out])
     codes = np.stack([np.asarray(c) for _, c, _ in out])
     mask = np.asarray(problem.mask)
@@ -271,13 +382,13 @@ def _predictive(problem, pos, data, relative, seed) -> dict:
     measured = np.where(mask, np.asarray(problem.measured), np.nan)
     sigma = np.asarray(problem.sigma)
     rng = np.random.default_rng(seed)
-    scale = np.ones(len(take))
+    scale = np.ones(len(pred))
     n_rel = int(relative.sum())
     if n_rel:
         ss = np.nansum(
             np.where(relative, ((pred - measured) / sigma) ** 2, 0.0), axis=(1, 2)
         )
-        scale = np.sqrt(ss / rng.chisquare(n_rel, len(take)))
+        scale = np.sqrt(ss / rng.chisquare(n_rel, len(pred)))
     noise = sigma * np.where(relative, scale[:, None, None], 1.0)
     replicated = pred + noise * rng.standard_normal(pred.shape)
     q = np.asarray(_QUANTILES)
@@ -292,6 +403,9 @@ def _predictive(problem, pos, data, relative, seed) -> dict:
             "model": np.nanquantile(pred, q, axis=0),
             "replicated": np.nanquantile(replicated, q, axis=0),
             "failed_draws": int((~ok & mask).any(axis=(1, 2)).sum()),
+            "draws": take,
+            "model_draws": pred.reshape(chains, len(take), *pred.shape[1:]),
+            "replicated_draws": replicated.reshape(chains, len(take), *pred.shape[1:]),
         }
 
 
@@ -305,11 +419,12 @@ def posterior_result(
     seconds: float,
 ) -> PosteriorResult:
     """The result of the draws: ``model`` = (names, priors, transforms);
-    ``draws`` = (x, u, log density, divergent, acceptance, tree-depth hits),
-    each ``(chains, draws, ...)``; ``context`` = (the final carry, the
-    least-squares fit, the residual problem, the data, the noise mask)."""
+    ``draws`` = (x, u, log density, divergent, acceptance, tree-depth hits,
+    each ``(chains, draws, ...)``, and a dict of the per-draw sample stats);
+    ``context`` = (the final carry, the least-squares fit, the residual
+    problem, the data, the noise mask)."""
     names, priors, transforms = model
-    x, pos, logd, div, acc, hits = draws
+    x, pos, logd, div, acc, hits, stats = draws
     carry, ls, problem, data, relative = context
     chains, _, p = x.shape
     rhat = np.array([split_rhat(x[..., i]) for i in range(p)])
@@ -381,4 +496,5 @@ def posterior_result(
         noise=noise,
         warnings=tuple(weak + notes),
         seconds=seconds,
+        sample_stats=stats,
     )

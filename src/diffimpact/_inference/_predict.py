@@ -5,13 +5,14 @@ from __future__ import annotations
 
 import dataclasses
 
+import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
 
-from .._io._data import (
-    DataError,
-)
+from .._io._data import DataError, column_of, read_frame
+from .._io._frames import is_dataframe
+from .._result import RESULTS, result_name
 from .._solve._rigid import RigidContact
 from .._solve._simulate import simulate
 from ._experiment import Experiment, with_inputs
@@ -178,7 +179,8 @@ def predict(
     _guarded: bool = True,
     _steps: bool = False,
 ) -> dict:
-    """Simulate one impact and return every measurable quantity it gives (SI).
+    """Simulate one impact and return every measurable quantity it gives (SI);
+    or every row of a pandas DataFrame, returned as a DataFrame.
 
     **Arguments:** `experiment`; `inputs`: the row's inputs, by quantity in SI
     (``{"drop_height": 0.3, "angle": 0.52}``) or by column name with its unit
@@ -193,7 +195,20 @@ def predict(
     velocity after over before.  (`_guarded`: as in `simulate`; `_steps`: add
     ``"num_steps"``, the solver's step count, 0 without an ODE, which `fit`
     uses to group impacts of similar cost.)
+
+    **A DataFrame** of rows (`inputs`), with the experiment file's column
+    names and units, is read as `load_experiments` reads a file (the same
+    checks and messages, rows named ``DataFrame, row N``; measured and sigma
+    columns may be there, and are carried through) and every row is
+    predicted at once (``vmap``).  Returns a copy of the frame with a column
+    ``predicted_<column>`` per quantity the model gives, in the unit of the
+    frame's column of that quantity where it has one (``contact_time_us``),
+    else in SI (``predicted_max_force_N``); with `throw` False also
+    ``result``, each row's `RESULTS` code (failed rows NaN).  With `throw`
+    True a failed row raises the error `simulate` raises, naming the row.
     """
+    if is_dataframe(inputs):
+        return _predict_frame(experiment, inputs, throw)
     e = with_inputs(experiment, inputs or {})
     if isinstance(e.law, RigidContact):
         out = _predict_rigid(e, throw)
@@ -258,3 +273,54 @@ def _add_cor_tangential(scene, out: dict) -> None:
         out["cor_tangential"] = out["tangential_velocity"] / spec.tangential_before(
             scene
         )
+
+
+def _predict_frame(experiment: Experiment, frame, throw: bool):
+    """`predict` over the rows of a DataFrame (see there)."""
+    data = read_frame(frame, require_output=False)
+    if not data.inputs:
+        raise ValueError(
+            f"{data.path}: no input column (e.g. 'drop_height_m', 'angle_deg'): "
+            "every row would be the same impact; give the inputs of each row"
+        )
+    check_rows(experiment, data.inputs, data.path, None, None, data.columns)
+    rows = {q: jnp.asarray(v) for q, v in data.inputs.items()}
+    chunk = 8 if jax.default_backend() == "cpu" and data.n > 8 else None
+    out, codes = _predict_rows(experiment, rows, chunk)
+    codes = np.asarray(codes)
+    failed = np.nonzero(codes != RESULTS.successful._value)[0]
+    if throw and failed.size:
+        i = int(failed[0])
+        row = {q: float(v[i]) for q, v in data.inputs.items()}
+        try:
+            predict(experiment, row, throw=True)
+        except Exception as err:  # the error of the row's own solve
+            err.args = (f"{data.path}, {row_label(None, i)}: {err}", *err.args[1:])
+            raise err from None
+        raise ValueError(  # a batched solve that failed where a single did not
+            f"{data.path}, {row_label(None, i)}: the prediction failed "
+            f"({result_name(int(codes[i]))})"
+        )
+    result = frame.copy()
+    for q, v in out.items():
+        col = column_of(q, data.columns)
+        result[f"predicted_{col.header}"] = np.asarray(v, dtype=float) / col.factor
+    if not throw:
+        result["result"] = codes
+    return result
+
+
+@eqx.filter_jit
+def _predict_rows(experiment: Experiment, rows: dict, chunk: int | None):
+    """Every row's prediction and result code: vmapped, in chunks of
+    `chunk` rows when given (a batch of ODE solves runs as long as its
+    longest).  Unguarded: `check_rows` checked every row first."""
+
+    def one(row):
+        out = predict(experiment, row, throw=False, _guarded=False)
+        code = out.pop("result")._value
+        return out, code
+
+    if chunk is None:
+        return jax.vmap(one)(rows)
+    return jax.lax.map(one, rows, batch_size=chunk)

@@ -37,6 +37,7 @@ import numpy as np
 from jax.sharding import Mesh, NamedSharding, PartitionSpec
 
 from .._checks import integer
+from .._io._frames import frame_columns, is_dataframe, to_frame
 from .._laws._jackson_green import JacksonGreen
 from .._materials import Material
 from .._solve._settings import SolverSettings
@@ -190,9 +191,22 @@ def sweep(
     The result is numpy, so ``sweep`` cannot be differentiated; use
     `sweep_map` for gradients through a (small) sweep.
 
+    **A pandas DataFrame** as `inputs`: its columns are the row's entries
+    (``fn`` gets ``{column name: value}``), and the result is a DataFrame
+    with the frame's index, one column per output leaf (named by its key).
+
     **Raises:** ``ValueError`` naming the field for mismatched leading axes, an
     empty sweep, or ``chunk_size <= 0``.
     """
+    if is_dataframe(inputs):
+        out = sweep(
+            fn,
+            frame_columns(inputs),
+            chunk_size=chunk_size,
+            devices=devices,
+            progress=progress,
+        )
+        return to_frame(out, inputs.index, "a sweep over a DataFrame")
     n, leaves, treedef = _rows(inputs)
     devices = list(jax.devices() if devices is None else devices)
     if not devices:
@@ -295,8 +309,12 @@ def sweep_map(fn: Callable, inputs, *, batch_size: int | None = None):
     per vmapped step (integer > 0) or None.
 
     **Returns:** the output pytree of ``fn``, leaves stacked to JAX arrays of
-    leading length ``N``.
+    leading length ``N``; for a pandas DataFrame of rows, a DataFrame (as
+    in `sweep`).
     """
+    if is_dataframe(inputs):
+        out = sweep_map(fn, frame_columns(inputs), batch_size=batch_size)
+        return to_frame(out, inputs.index, "a sweep over a DataFrame")
     n, _, _ = _rows(inputs)
     if batch_size is None:
         return jax.vmap(fn)(inputs)

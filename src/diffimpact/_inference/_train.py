@@ -227,7 +227,7 @@ def train(
     """Train the learned parameters of a `Hybrid` (or a `VelocityNetwork`) on
     rows of an experiment file.
 
-    **Arguments:** `model`; `data`: a path or `ExperimentData`; `rows`: the
+    **Arguments:** `model`; `data`: a path, `ExperimentData` or DataFrame; `rows`: the
     row indices to learn from (default all), of which a `validation`
     fraction (drawn with `seed`) is held back for early stopping and to
     choose the `regularisation` (a number, or several to choose from;

@@ -24,6 +24,7 @@ import csv
 import dataclasses
 import math
 import os
+import sys
 
 import numpy as np
 
@@ -33,6 +34,7 @@ from ._declarations import (
     format_declarations,
     read_declarations,
 )
+from ._frames import is_dataframe, si_suffix
 from ._units import (
     SI,
     UNITS,
@@ -160,6 +162,20 @@ def parse_column(header: str, where: str = "") -> Column:
     return Column(header, quantity, unit, UNITS[unit][1], is_sigma)
 
 
+def column_of(quantity: str, columns: dict | None = None) -> Column:
+    """The column that gives ``quantity``: the file's own (from
+    `ExperimentData.columns`, its unit the file's) where it has one, else
+    the quantity in SI units (``max_force_N``, ``angle_rad``, ``cor_normal``).
+    Output files and DataFrames name their columns by it, and divide an SI
+    value by its ``factor`` to write it in that unit."""
+    for col in (columns or {}).values():
+        if col.quantity == quantity and not col.is_sigma:
+            return col
+    dim = QUANTITIES[quantity].dimension
+    suffix = si_suffix(dim)
+    return Column(quantity + suffix, quantity, suffix[1:].lower(), 1.0, False)
+
+
 def unit_label(quantity: str) -> str:
     """`` [SI unit]`` of a quantity for a figure's axis ("" if dimensionless)."""
     dim = QUANTITIES[quantity].dimension if quantity in QUANTITIES else ""
@@ -179,9 +195,11 @@ class ExperimentData:
       never used as inputs;
     - `declarations`: the body a planar-body file declares above its header
       (`Declarations`, in SI units), or None;
-    - `provenance`: the ``#`` lines before the header; `path`: the file.
+    - `provenance`: the ``#`` lines before the header; `path`: the file
+      (``"DataFrame"`` for a DataFrame).
     - `lines`: the line number in the file of each row, shape ``(n,)``: every
-      message, residual file and plot names a row by it.
+      message, residual file and plot names a row by it (None for a
+      DataFrame: rows are named ``row N``, from 1).
     """
 
     scene: str | None
@@ -234,8 +252,9 @@ def _clockwise(provenance: list[str], path: str) -> bool:
     return bool(found)
 
 
-def load_experiments(path: str | os.PathLike) -> ExperimentData:
-    """Read and validate an experiment CSV (schema in this module's docstring).
+def load_experiments(path) -> ExperimentData:
+    """Read and validate an experiment CSV (schema in this module's docstring),
+    or a pandas DataFrame with the same column names and units.
 
     Raises `DataError` (a ``ValueError``) naming the file, the row (the
     line number in the file) and the column for: an empty file, no header or no
@@ -255,7 +274,17 @@ def load_experiments(path: str | os.PathLike) -> ExperimentData:
     the scenes.  Lines ``body:``, ``shape:``, ``body_material:`` and
     ``flat_material:`` declare a planar body (`read_declarations`), read
     and checked here.
+
+    A pandas DataFrame goes through the same checks, cell by cell as the
+    file's text (a float as its shortest round-trip text; NaN, None or ""
+    as an empty cell): the same numbers to the bit and the same messages,
+    with ``DataFrame, row N`` (from 1, in the frame's order; the index is
+    not read) for the file and line; ``path`` is then ``"DataFrame"`` and
+    ``lines`` None.  ``frame.attrs["provenance"]`` (one note a line) stands
+    for the ``#`` lines above a file's header.
     """
+    if is_dataframe(path):
+        return read_frame(path)
     path = os.fspath(path)
     lines = _read_lines(path)
     provenance, preamble, body_start = [], [], 0
@@ -286,12 +315,101 @@ def load_experiments(path: str | os.PathLike) -> ExperimentData:
         ends[first] = body_start + consumed  # the line the row ends on
         if any(r) and not r[0].lstrip().startswith("#"):
             rows.append((first, r))
+    source = _Source(path, "line", f"{path}, line {body_start + 1}")
+
+    def fields(lineno, row):
+        if len(row) != len(header):
+            # a row read across lines with too few fields: a quote left open
+            # (a quoted field may span lines, but then the count holds)
+            last = ends[lineno]
+            runs_on = (
+                f'; it runs on to line {last}: is a quote (") left open?'
+                if last > lineno
+                else '; a quote (") is left open'
+                if lines[lineno - 1].count('"') % 2
+                else ""
+            )
+            raise DataError(
+                f"{path}, line {lineno}: {len(row)} fields, expected {len(header)} "
+                f"({', '.join(header)}){runs_on}"
+            )
+
+    return _parse(source, header, rows, provenance, preamble, fields)
+
+
+@dataclasses.dataclass(frozen=True)
+class _Source:
+    """How messages name the data and its rows: a file by its path and the
+    line a row starts on, a DataFrame as ``DataFrame`` and its row number."""
+
+    path: str
+    row: str  # "line" or "row"
+    header: str  # where the header is
+    numbered: bool = True  # keep the row numbers as `ExperimentData.lines`
+
+    def at(self, number: int) -> str:
+        return f"{self.path}, {self.row} {number}"
+
+
+def read_frame(frame, *, require_output: bool = True) -> ExperimentData:
+    """A pandas DataFrame with the experiment file's column names (and units)
+    read as `load_experiments` reads the file: each cell is given to the
+    same checks as the file's text (a float as its shortest round-trip
+    text, NaN, None or an empty string as an empty cell), so the numbers are
+    the file's to the bit and a bad column or value gets the same message,
+    with ``DataFrame, row N`` (N from 1, in the frame's order; the index is
+    not read) in place of the file and line.  ``frame.attrs["provenance"]``
+    (a string, one line per note) stands for the ``#`` lines above a file's
+    header: the notes, ``angles: clockwise`` and a planar body's
+    declarations.  `require_output`: False for rows to predict (no measured
+    column needed)."""
+    isna = sys.modules["pandas"].isna  # (a DataFrame: pandas is imported)
+    header = [str(h).strip() for h in frame.columns]
+    rows = [
+        (i + 1, [_text(v, isna) for v in values])
+        for i, values in enumerate(frame.itertuples(index=False, name=None))
+    ]
+    notes = frame.attrs.get("provenance", "") if hasattr(frame, "attrs") else ""
+    provenance = [line.lstrip("#").strip() for line in str(notes).splitlines()]
+    provenance = [line for line in provenance if line]
+    preamble = list(enumerate(provenance, start=1))
+    source = _Source("DataFrame", "row", "DataFrame", numbered=False)
+    return _parse(source, header, rows, provenance, preamble, None, require_output)
+
+
+def _text(value, isna) -> str:
+    """A DataFrame cell as the text a CSV file would hold."""
+    if isinstance(value, str):
+        return value
+    if value is None or isna(value) is True:  # NaN, None, pd.NA, NaT
+        return ""
+    if isinstance(value, bool | np.bool_):
+        return str(value)  # refused as not a number, as in a file
+    try:
+        x = float(value)
+    except (TypeError, ValueError):
+        return str(value)
+    return "" if math.isnan(x) else repr(x)
+
+
+def _parse(
+    source: _Source,
+    header: list[str],
+    rows: list,
+    provenance: list[str],
+    preamble: list,
+    fields=None,
+    require_output: bool = True,
+) -> ExperimentData:
+    """The checks and conversions of `load_experiments` after the text is
+    split: ``rows`` are ``(number, cells)``; `fields` checks a row's length."""
+    path = source.path
     if not rows:
         raise DataError(f"{path}: header but no rows of data")
     unnamed = [j + 1 for j, h in enumerate(header) if not h]
     if unnamed:
         raise DataError(
-            f"{path}, line {body_start + 1}: column(s) {unnamed} of the header have "
+            f"{source.header}: column(s) {unnamed} of the header have "
             "no name (a stray or trailing comma?); every column needs a name"
         )
     if len(set(header)) != len(header):
@@ -322,7 +440,7 @@ def load_experiments(path: str | os.PathLike) -> ExperimentData:
                 f"{col.quantity!r}, but the file has no measured {col.quantity!r} "
                 "column"
             )
-    if not any(
+    if require_output and not any(
         QUANTITIES[c.quantity].role == "output" and not c.is_sigma
         for c in columns.values()
     ):
@@ -332,28 +450,15 @@ def load_experiments(path: str | os.PathLike) -> ExperimentData:
     scenes = set()
     values = {j: [] for j in columns}
     for lineno, row in rows:
-        if len(row) != len(header):
-            # a row read across lines with too few fields: a quote left open
-            # (a quoted field may span lines, but then the count holds)
-            last = ends[lineno]
-            runs_on = (
-                f'; it runs on to line {last}: is a quote (") left open?'
-                if last > lineno
-                else '; a quote (") is left open'
-                if lines[lineno - 1].count('"') % 2
-                else ""
-            )
-            raise DataError(
-                f"{path}, line {lineno}: {len(row)} fields, expected {len(header)} "
-                f"({', '.join(header)}){runs_on}"
-            )
+        if fields is not None:
+            fields(lineno, row)
         if scene_idx is not None:
             s = row[scene_idx].strip()
             if not s:
-                raise DataError(f"{path}, line {lineno}, column 'scene': empty")
+                raise DataError(f"{source.at(lineno)}, column 'scene': empty")
             scenes.add(s.lower().replace("-", "_"))  # as scene names are read
         for j, col in columns.items():
-            values[j].append(_cell(row[j], col, path, lineno))
+            values[j].append(_cell(row[j], col, source.at(lineno)))
     if len(scenes) > 1:
         raise DataError(
             f"{path}, column 'scene': one scene per file, found {sorted(scenes)}; "
@@ -384,8 +489,10 @@ def load_experiments(path: str | os.PathLike) -> ExperimentData:
                 if q in group:
                     group[q] = -group[q]
     line_numbers = np.asarray([lineno for lineno, _ in rows])
+    if not source.numbered:
+        line_numbers = None
     for q, a in outputs.items():
-        if not np.isfinite(a).any():
+        if require_output and not np.isfinite(a).any():
             raise DataError(
                 f"{path}, column {seen[(q, False)]!r}: no row has a value; fill "
                 "it in or remove the column"
@@ -395,7 +502,7 @@ def load_experiments(path: str | os.PathLike) -> ExperimentData:
         if bad.any():
             k = int(np.argmax(bad))
             raise DataError(
-                f"{path}, line {rows[k][0]}, column {seen[(q, True)]!r}: an "
+                f"{source.at(rows[k][0])}, column {seen[(q, True)]!r}: an "
                 "uncertainty must be a number > 0 where the output is measured"
             )
     if "rebound_velocity" in outputs and "impact_velocity" in inputs:
@@ -403,7 +510,7 @@ def load_experiments(path: str | os.PathLike) -> ExperimentData:
         if faster.any():
             k = int(np.argmax(faster))
             raise DataError(
-                f"{path}, line {rows[k][0]}: the rebound velocity exceeds the "
+                f"{source.at(rows[k][0])}: the rebound velocity exceeds the "
                 "impact velocity (a normal COR above 1, more energy out than in); "
                 "check the columns' units"
             )
@@ -455,8 +562,8 @@ def finite_number(text: str, where: str) -> float:
     return x
 
 
-def _cell(text: str, col: Column, path: str, lineno: int) -> float:
-    where = f"{path}, line {lineno}, column {col.header!r}"
+def _cell(text: str, col: Column, row: str) -> float:
+    where = f"{row}, column {col.header!r}"
     text = text.strip()
     q = QUANTITIES[col.quantity]
     if not text:
