@@ -36,7 +36,7 @@ import jax.numpy as jnp
 import numpy as np
 from jax.sharding import Mesh, NamedSharding, PartitionSpec
 
-from .._checks import integer
+from .._checks import integer, raise_as_invalid
 from .._laws._jackson_green import JacksonGreen
 from .._materials import Material
 from .._solve._settings import SolverSettings
@@ -191,7 +191,11 @@ def sweep(
     `sweep_map` for gradients through a (small) sweep.
 
     **Raises:** ``ValueError`` naming the field for mismatched leading axes, an
-    empty sweep, or ``chunk_size <= 0``.
+    empty sweep, or ``chunk_size <= 0``; `diffimpact.InvalidInputError`
+    naming the field, the value and the row for a row outside a scene's
+    domain, when ``fn`` simulates with ``throw=True`` (`normal_impact`'s
+    default ``throw=False`` gives that row the code ``invalid_input`` and
+    NaN outputs instead).
     """
     n, leaves, treedef = _rows(inputs)
     devices = list(jax.devices() if devices is None else devices)
@@ -266,13 +270,23 @@ def sweep(
 
     # JAX dispatches asynchronously: chunk k+1 is queued before chunk k is
     # copied back, so the devices are not idle during the host transfer.
+    # A traced input check that fails inside `fn` (under jit: JAX's runtime
+    # error) is raised as InvalidInputError naming the sweep's row (exact on
+    # one device, whose program holds the whole chunk).
+    def checked(call, k: int, *args):
+        try:
+            return call(k, *args)
+        except (jax.errors.JaxRuntimeError, ValueError) as err:
+            raise_as_invalid(err, k * chunk if n_dev == 1 else None, n)
+            raise
+
     pending = None
     for k in range(n_chunks):
-        out = run_chunk(k)
+        out = checked(lambda k: run_chunk(k), k)
         if pending is not None:
-            collect(*pending)
+            checked(collect, *pending)
         pending = (k, out)
-    collect(*pending)
+    checked(collect, *pending)
     return jax.tree_util.tree_unflatten(out_def, out_leaves)
 
 
@@ -440,9 +454,10 @@ def check_normal_inputs(columns: Mapping[str, Any]) -> None:
     """Check the columns of a `normal_impact` sweep before running it.
 
     Inside a sweep the inputs are traced, so a bad row (say a zero velocity)
-    only fails at run time, as an ``EquinoxRuntimeError`` from the compiled
-    program.  This builds the scene once from the whole (concrete) columns, so
-    that a bad value raises ``ValueError`` naming the field (e.g.
+    is only found at run time: with ``throw=False`` (the default of
+    `normal_impact`) it gets the code ``invalid_input`` and NaN outputs.
+    This builds the scene once from the whole (concrete) columns, so that a
+    bad value raises ``ValueError`` naming the field (e.g.
     ``NormalImpact.velocity``) before anything is compiled.
     """
     _normal_scene({k: np.asarray(v) for k, v in columns.items()})
