@@ -1,5 +1,5 @@
 """Bad values of the Python API, a table of them under every way of calling
-(issue 43): ``equinox.filter_jit`` and plain ``jax.jit`` raise with the
+(the newcomer trial): ``equinox.filter_jit`` and plain ``jax.jit`` raise with the
 field and the value, a jitted ``vmap`` names the row too, an eager ``vmap``
 and `sweep` raise `InvalidInputError` (a ``ValueError``), and with
 ``throw=False`` nothing raises: the bad row gets ``invalid_input`` and NaN
@@ -115,7 +115,7 @@ def _raises(f, x, expected, pattern):
 def test_table_under_jit():
     """Each bad value under plain jax.jit: JAX's own runtime error
     (JaxRuntimeError, or ValueError once the compiled function has run: JAX
-    issue 34083), whose text ends with the check's message, the field and
+    GitHub issue 34083), whose text ends with the check's message, the field and
     the value."""
     f = jax.jit(run)
     assert np.all(np.isfinite(np.asarray(f(jnp.asarray(BASE))[:2])))

@@ -26,7 +26,7 @@ Where diffimpact runs the computation itself (an eager call, an eager
 and equinox see the error: ``equinox.filter_jit`` raises
 ``equinox.EquinoxRuntimeError`` with the message; plain ``jax.jit`` raises
 JAX's ``JaxRuntimeError`` (a ``ValueError`` once the compiled function has
-run, JAX issue 34083) whose text ends with the message.
+run: JAX GitHub issue 34083) whose text ends with the message.
 """
 
 from __future__ import annotations

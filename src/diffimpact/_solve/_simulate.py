@@ -368,7 +368,8 @@ def simulate(
     # cannot be dropped (see `_checks.guard`).
     for name, part in (("scene", scene), ("law", law), ("friction", friction)):
         require_scalars(part, name)
-    invalid = None
+    # (an array either way: eager calls with and without throw share a program)
+    invalid = jnp.zeros((), bool)
     if _guarded and throw:
         scene, law, friction = guard((scene, law, friction))
     elif _guarded:

@@ -391,7 +391,7 @@ def simulate_span(
     parts = (scene, law, friction, t0, t1)
     if throw:
         scene, law, friction, t0, t1 = guard(parts, times)
-        bad = None
+        bad = jnp.zeros((), bool)  # (as in `simulate`: one program either way)
     else:
         (scene, law, friction, t0, t1), bad = guard(parts, times, throw=False)
         # A bad span would trip diffrax's own checks: a short valid one
