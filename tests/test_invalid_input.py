@@ -231,3 +231,6 @@ def test_sweep_names_the_row():
         "successful",
     ]
     assert np.isnan(out["max_force"][2]) and np.all(np.isfinite(out["max_force"][:2]))
+    # a row called eagerly, as in a Python loop: the same code
+    row = di.normal_impact_row({"poisson_ratio": 0.9}, law=di.Hertz())
+    assert di.result_name(row["result"]) == "invalid_input"

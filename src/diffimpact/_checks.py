@@ -155,14 +155,6 @@ def raise_failed(checks: Iterable[Check]) -> None:
             raise InvalidInputError(c.message + (f" (got {shown})" if shown else ""))
 
 
-def failed_concretely(checks: Iterable[Check]) -> bool:
-    """Whether a check whose outcome is concrete fails (`raise_failed`
-    without the raise)."""
-    return any(
-        not _is_traced(c.ok) and not bool(np.all(np.asarray(c.ok))) for c in checks
-    )
-
-
 def _show(value) -> str:
     """The value for a message; "" when it is traced with no concrete value
     at hand."""
@@ -307,8 +299,8 @@ class _Messages(Sequence):
 
 
 class _Last:
-    """The last message handed to equinox (for `guard`'s eager re-raise,
-    `raised_message` and the log filter)."""
+    """The last message handed to equinox, and its parts (for `guard`'s
+    eager re-raise, `raise_as_invalid` and the log filter)."""
 
     text: str | None = None
     row: tuple | None = None
@@ -356,25 +348,31 @@ def _detail(checks: list[Check], bad, index):
 
 
 def _record(messages, ndims, dtype, bad, *values):
+    """On the host, when a check fails: write the failing check's message with
+    its value and row (the first failing row, in C order) and return the
+    check's index for every row."""
     bad = np.asarray(bad)
     batch = bad.shape[:-1]
     rows = bad.reshape(-1, bad.shape[-1])
     first = int(np.argmax(rows.any(axis=1)))
     i = int(np.argmax(rows[first]))
-    row = tuple(int(k) for k in np.unravel_index(first, batch)) if batch else ()
-    value = np.asarray(values[i])
-    lead = value.ndim - ndims[i]
-    at = tuple(k if value.shape[j] > 1 else 0 for j, k in enumerate(row[-lead:]))
-    shown = _show(value[at] if lead > 0 else value)
-    if len(batch) == 1:
-        where = f", row {row[0]} of {batch[0]}"
-    elif batch:
-        where = f", batch element {row} of shape {batch}"
-    else:
-        where = ""
-    text = f"{messages[i]} (got {shown}{where})"
-    _details[(messages, i)] = text
-    _last.row, _last.batch, _last.value = row, batch, (messages[i], shown)
+    try:
+        row = tuple(int(k) for k in np.unravel_index(first, batch)) if batch else ()
+        value = np.asarray(values[i])
+        lead = min(max(value.ndim - ndims[i], 0), len(row))
+        at = row[len(row) - lead :]
+        at = tuple(k if value.shape[j] > 1 else 0 for j, k in enumerate(at))
+        shown = _show(value[at])
+        if len(batch) == 1:
+            where = f", row {row[0]} of {batch[0]}"
+        elif batch:
+            where = f", batch element {row} of shape {batch}"
+        else:
+            where = ""
+        _details[(messages, i)] = f"{messages[i]} (got {shown}{where})"
+        _last.row, _last.batch, _last.value = row, batch, (messages[i], shown)
+    except Exception:  # the check's own message, never a formatting error
+        _last.row = _last.batch = _last.value = None
     return np.full(batch, i, dtype)
 
 

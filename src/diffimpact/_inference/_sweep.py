@@ -31,12 +31,13 @@ import zlib
 from collections.abc import Callable, Mapping, Sequence
 from typing import Any
 
+import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
 from jax.sharding import Mesh, NamedSharding, PartitionSpec
 
-from .._checks import integer, raise_as_invalid
+from .._checks import as_float, integer, is_traced, raise_as_invalid
 from .._laws._jackson_green import JacksonGreen
 from .._materials import Material
 from .._solve._settings import SolverSettings
@@ -488,8 +489,10 @@ def normal_impact(
       to about 1e-11 and the fastest path (Hertz and Jackson-Green only).
     - `settings`: `diffimpact.SolverSettings` (default settings).
     - `throw`: default False: a row whose impact fails (outside the contact
-      model, say) gets NaN outputs and its code, and the sweep goes on; True
-      stops the whole sweep at the first failure.
+      model, say) or whose input lies outside its domain (``invalid_input``)
+      gets NaN outputs and its code, and the sweep goes on, also when the
+      row is called eagerly; True stops the whole sweep at the first failure
+      or bad value.
 
     **Returns:** dict of `NORMAL_OUTPUTS` (SI: s, -, N, m, m, m/s) and
     ``"result"``, the integer `diffimpact.RESULTS` code of each row
@@ -499,6 +502,12 @@ def normal_impact(
     for other laws, ``functools.partial(normal_impact, law=di.Hertz())``;
     `check_normal_inputs` validates the columns first.
     """
+    if not throw and not is_traced(params):
+        # Eagerly the constructors would refuse a bad value at once; compiled,
+        # the row gets its code, as in a sweep (a loop and a sweep agree).
+        _normal_params(params)  # an unknown column: still an error
+        rows = {k: as_float(v) for k, v in params.items()}
+        return _compiled_row(rows, law, method, settings)
     scene = _normal_scene(params)
     res = simulate(
         scene,
@@ -511,6 +520,11 @@ def normal_impact(
     out = {name: getattr(res, name) for name in NORMAL_OUTPUTS}
     out["result"] = res.result._value
     return out
+
+
+@eqx.filter_jit
+def _compiled_row(params, law, method, settings):
+    return normal_impact(params, law=law, method=method, settings=settings)
 
 
 # The public name (``diffimpact.normal_impact_row``): one row of a sweep.
