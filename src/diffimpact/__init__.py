@@ -73,6 +73,7 @@ from ._materials import effective_radius as effective_radius
 from ._result import RESULTS as RESULTS
 from ._result import History as History
 from ._result import ImpactResult as ImpactResult
+from ._result import InvalidInputError as InvalidInputError
 from ._result import NeverSeparatesError as NeverSeparatesError
 from ._result import OutsideModelError as OutsideModelError
 from ._result import SimulationError as SimulationError

@@ -12,23 +12,51 @@ in ``_checks()``.  They run twice, with the same message:
   ``equinox.error_if`` whose return value is unused is dropped by JAX), and
   XLA runs it before anything that depends on the inputs: a traced bad value
   raises the same message as an ``EquinoxRuntimeError`` instead of reaching
-  the solver.  This is how diffrax guards ``dt0``.
+  the solver.  This is how diffrax guards ``dt0``.  The traced message names
+  the offending value and, under ``vmap``, its row: only when a check fails,
+  a host callback reads them (`_detail`).
+
+With ``throw=False`` (`guard(..., throw=False)`) no value check raises: the
+guard returns whether each row is invalid, and the solve reports it as
+``RESULTS.invalid_input`` with NaN outputs.
+
+Where diffimpact runs the computation itself (an eager call, an eager
+``vmap``, `diffimpact.sweep`), a traced check's error reaches the user as
+`InvalidInputError` (a ``ValueError``).  Inside a user's ``jit`` only JAX
+and equinox see the error: ``equinox.filter_jit`` raises
+``equinox.EquinoxRuntimeError`` with the message; plain ``jax.jit`` raises
+JAX's ``JaxRuntimeError`` (a ``ValueError`` once the compiled function has
+run: JAX GitHub issue 34083) whose text ends with the message.
 """
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import functools
+import logging
 import math
 import types
 import typing
-from collections.abc import Iterable
+from collections.abc import Iterable, Sequence
 from typing import NamedTuple
 
 import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
+from equinox.internal import unvmap_any
+
+
+class InvalidInputError(ValueError):
+    """An input outside its domain (a negative modulus, a Poisson ratio of
+    0.9, a NaN speed), with ``throw=True``: the message names the field and
+    the value, and under ``vmap`` the row.  A ``ValueError``.  ``result`` is
+    ``RESULTS.invalid_input`` where a result code was at hand, else None."""
+
+    def __init__(self, message: str, result=None):
+        super().__init__(message)
+        self.result = result
 
 
 class Check(NamedTuple):
@@ -124,7 +152,7 @@ def raise_failed(checks: Iterable[Check]) -> None:
             continue
         if not bool(np.all(np.asarray(c.ok))):
             shown = _show(c.value)
-            raise ValueError(c.message + (f" (got {shown})" if shown else ""))
+            raise InvalidInputError(c.message + (f" (got {shown})" if shown else ""))
 
 
 def _show(value) -> str:
@@ -209,27 +237,186 @@ def collect_checks(tree) -> list[Check]:
     return out
 
 
-def guard(tree, extra: Iterable[Check] = ()):
+def guard(tree, extra: Iterable[Check] = (), *, throw: bool = True):
     """Return ``tree`` with every check of its modules (and ``extra``) applied.
 
-    Concrete failures raise ``ValueError`` at once.  Traced checks become one
-    ``equinox.branched_error_if`` on the whole of ``tree`` (the first failing
-    check's message is raised); use the returned tree, never the argument, so
-    the check stays in the computation."""
+    Concrete failures raise `InvalidInputError` at once.  Traced checks become
+    one ``equinox.branched_error_if`` on the whole of ``tree`` (the first
+    failing check's message is raised, with the value and the row: `_detail`);
+    use the returned tree, never the argument, so the check stays in the
+    computation.
+
+    With ``throw=False`` nothing raises: the result is ``(tree, invalid)``,
+    ``invalid`` a boolean array (per row under ``vmap``) that is True where a
+    check fails, for the solve to report as ``RESULTS.invalid_input``."""
     checks = [*collect_checks(tree), *extra]
+    if not throw:
+        return tree, invalid(checks)
     raise_failed(checks)
-    traced = [c for c in checks if _is_traced(c.ok) or _is_traced(c.value)]
+    traced = [c for c in checks if _is_traced(c.ok)]
     if not traced or not any(eqx.is_array(x) for x in jax.tree.leaves(tree)):
         return tree
     bad = jnp.stack([jnp.any(jnp.logical_not(c.ok)) for c in traced])
-    index = jnp.argmax(bad)
-    return eqx.branched_error_if(tree, jnp.any(bad), index, [c.message for c in traced])
+    index = _detail(traced, bad, jnp.argmax(bad))
+    messages = _Messages(tuple(c.message for c in traced))
+    try:
+        return eqx.branched_error_if(tree, jnp.any(bad), index, messages)
+    except eqx.EquinoxRuntimeError:
+        # Run here (an eager vmap or grad): the documented class.
+        if _last.text is None:
+            raise
+        raise InvalidInputError(_last.text) from None
+
+
+def invalid(checks: Iterable[Check]):
+    """A boolean array, True where any of ``checks`` fails (per row under
+    ``vmap``); never raises."""
+    flags = [jnp.any(jnp.logical_not(jnp.asarray(c.ok))) for c in checks]
+    return jnp.any(jnp.stack(flags)) if flags else jnp.asarray(False)
+
+
+# --------------------------------------------------------------------------
+# A traced check's message: the value and the row, read only on failure
+# --------------------------------------------------------------------------
+
+
+@dataclasses.dataclass(frozen=True)
+class _Messages(Sequence):
+    """The messages of one `guard`, handed to ``equinox.branched_error_if``
+    (a static, hashable argument).  equinox takes the failing check's message
+    by its index on the host, when it raises; this returns the one `_record`
+    wrote for that check, with the value and the row."""
+
+    messages: tuple[str, ...]
+
+    def __len__(self) -> int:
+        return len(self.messages)
+
+    def __getitem__(self, i):
+        text = _details.pop((self.messages, i), None) or self.messages[i]
+        _last.text = text
+        return text
+
+
+class _Last:
+    """The last message handed to equinox, and its parts (for `guard`'s
+    eager re-raise, `raise_as_invalid` and the log filter)."""
+
+    text: str | None = None
+    row: tuple | None = None
+    batch: tuple | None = None
+    value: tuple | None = None  # (the check's message, the value shown)
+
+
+_last = _Last()
+_details: dict = {}
+
+
+def raise_as_invalid(err: BaseException, first_row: int | None, rows: int) -> None:
+    """Raise `InvalidInputError` for ``err`` (a JAX or equinox runtime error
+    from a jitted ``vmap`` over rows ``first_row``, ... of a sweep of
+    ``rows``; None: rows not known) if it reports a traced input check,
+    naming the sweep's row; return otherwise."""
+    text = _last.text
+    if text is None or _last.value is None or text not in str(err):
+        return
+    message, shown = _last.value
+    batch, row = _last.batch or (), _last.row or ()
+    known = len(batch) == 1 and first_row is not None
+    where = f", row {first_row + row[0]} of {rows}" if known else ""
+    raise InvalidInputError(f"{message} (got {shown}{where})") from None
+
+
+def _detail(checks: list[Check], bad, index):
+    """``index`` (the failing check), after a host callback has written the
+    check's message with its value and row, only when a check fails: the
+    callback sits in a ``lax.cond`` on the whole batch's failure, so a valid
+    input runs none.  The check's index is returned through the callback, so
+    equinox's error waits for it."""
+    values = [jax.lax.stop_gradient(jnp.asarray(c.value)) for c in checks]
+    ndims = tuple(jnp.ndim(v) for v in values)
+    messages = tuple(c.message for c in checks)
+    out = jax.ShapeDtypeStruct(jnp.shape(index), index.dtype)
+    record = functools.partial(_record, messages, ndims, index.dtype)
+
+    def failed(bad, index, values):
+        del index
+        return jax.pure_callback(record, out, bad, *values, vmap_method="broadcast_all")
+
+    fails = unvmap_any(jnp.any(bad))
+    return jax.lax.cond(fails, failed, lambda b, i, v: i, bad, index, values)
+
+
+def _record(messages, ndims, dtype, bad, *values):
+    """On the host, when a check fails: write the failing check's message with
+    its value and row (the first failing row, in C order) and return the
+    check's index for every row."""
+    bad = np.asarray(bad)
+    batch = bad.shape[:-1]
+    rows = bad.reshape(-1, bad.shape[-1])
+    first = int(np.argmax(rows.any(axis=1)))
+    i = int(np.argmax(rows[first]))
+    try:
+        row = tuple(int(k) for k in np.unravel_index(first, batch)) if batch else ()
+        value = np.asarray(values[i])
+        lead = min(max(value.ndim - ndims[i], 0), len(row))
+        at = row[len(row) - lead :]
+        at = tuple(k if value.shape[j] > 1 else 0 for j, k in enumerate(at))
+        shown = _show(value[at])
+        if len(batch) == 1:
+            where = f", row {row[0]} of {batch[0]}"
+        elif batch:
+            where = f", batch element {row} of shape {batch}"
+        else:
+            where = ""
+        _details[(messages, i)] = f"{messages[i]} (got {shown}{where})"
+        _last.row, _last.batch, _last.value = row, batch, (messages[i], shown)
+    except Exception:  # the check's own message, never a formatting error
+        _last.row = _last.batch = _last.value = None
+    return np.full(batch, i, dtype)
+
+
+class _QuietCallback(logging.Filter):
+    """JAX logs every exception raised in a host callback with its traceback
+    (``jax.pure_callback failed``) before it raises it to the caller; for
+    diffimpact's own errors (an input check, a failed solve's code) the
+    exception carries the whole message, so the log is dropped."""
+
+    def filter(self, record: logging.LogRecord) -> bool:
+        if record.getMessage() != "jax.pure_callback failed" or not record.exc_info:
+            return True
+        text = str(record.exc_info[1])
+        ours = text.startswith("diffimpact: ") or (
+            _last.text is not None and text.startswith(_last.text)
+        )
+        return not ours
+
+
+logging.getLogger("jax._src.callback").addFilter(_QuietCallback())
+
+
+_skip_requires = 0
+
+
+@contextlib.contextmanager
+def inputs_guarded():
+    """Inside a solve whose entry checked its inputs (`guard`): `require`
+    adds no second check.  With ``throw=False`` a bad row reaches the solve
+    (its outputs are NaN afterwards), and must not raise there."""
+    global _skip_requires
+    _skip_requires += 1
+    try:
+        yield
+    finally:
+        _skip_requires -= 1
 
 
 def require(x, ok, message: str):
     """Return ``x`` after checking the boolean array ``ok`` (eagerly:
     ``ValueError``; traced: an ``equinox.error_if`` guard on ``x``, so use the
-    returned value)."""
+    returned value).  Nothing inside `inputs_guarded`."""
+    if _skip_requires:
+        return x
     if _is_traced(x) or _is_traced(ok):
         return eqx.error_if(x, jnp.logical_not(ok), message)
     raise_failed([Check(x, ok, message)])

@@ -8,6 +8,7 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array
 
+from ._checks import InvalidInputError
 from ._materials import MAX_DEPTH
 
 
@@ -17,10 +18,10 @@ class RESULTS(eqx.Enumeration):
     Every result carries one in its ``result`` field.  With ``throw=True``
     (the default) a failure raises: eagerly as the matching
     `SimulationError` subclass, under ``jax.jit``/``jax.vmap`` as an
-    ``equinox`` runtime error with the same message.  With ``throw=False`` a
-    failed solve does not raise (invalid input still does, naming the field):
-    a failed element's floating-point outputs are NaN and its
-    ``result`` says why, and the other elements of a batch are unaffected.
+    ``equinox`` runtime error with the same message.  With ``throw=False``
+    nothing raises for a value: a failed element's floating-point outputs are
+    NaN and its ``result`` says why (``invalid_input`` for an input outside
+    its domain), and the other elements of a batch are unaffected.
     Compare with ``result == diffimpact.RESULTS.successful``; under ``vmap``
     ``ImpactResult.code`` is the integer code array (`result_name` names a
     code, ``RESULTS[...]`` of an item gives its message).
@@ -75,6 +76,11 @@ class RESULTS(eqx.Enumeration):
         "changes phase more often than the contact-space solve resolves; use "
         "method='smooth' (the planar ODE)"
     )
+    invalid_input = (
+        "diffimpact: an input lies outside its domain (a modulus <= 0, a "
+        "Poisson ratio outside (-1, 0.5), a NaN speed, ...); with throw=True "
+        "the error names the field and the value"
+    )
 
 
 class SimulationError(RuntimeError):
@@ -112,6 +118,7 @@ _ERRORS = {
     "annuli_outgrown": OutsideModelError,
     "contact_space_unsupported": SolverError,
     "unphysical": SimulationError,
+    "invalid_input": InvalidInputError,
 }
 
 
@@ -128,6 +135,15 @@ def result_name(code: int) -> str:
 
 
 _NAMES = {int(getattr(RESULTS, n)._value): n for n in ("successful", *_ERRORS)}
+
+
+def with_invalid(result, invalid):
+    """``result``, or ``invalid_input`` where ``invalid`` (from
+    ``guard(..., throw=False)``; None: no check) is True."""
+    if invalid is None:
+        return result
+    flag = RESULTS.where(invalid, RESULTS.invalid_input, RESULTS.successful)
+    return first_failure(flag, result)
 
 
 def first_failure(*codes):

@@ -3,6 +3,7 @@ that name a row before a batch is solved, and the row labels of messages."""
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 
 import equinox as eqx
@@ -10,6 +11,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from .._checks import inputs_guarded
 from .._io._data import DataError, column_of, read_frame
 from .._io._frames import is_dataframe
 from .._result import RESULTS, result_name
@@ -188,7 +190,8 @@ def predict(
     listing the valid ones, and a value outside the scene's range (an angle
     in degrees given as radians, say) is refused by the scene's checks.
     `throw`: as in `simulate`; with False the dict also holds
-    ``"result"``, the `RESULTS` code, and failed outputs are NaN.
+    ``"result"``, the `RESULTS` code (``invalid_input`` for an input outside
+    the scene's range), and failed outputs are NaN.
 
     Keys follow the experiment CSV quantities (``contact_time``,
     ``cor_normal``, ...); ``cor_tangential`` is the centre-of-mass tangential
@@ -239,7 +242,7 @@ def predict(
         out["tangential_velocity"] = r.extras["tangential_velocity_after"]
     if "angular_velocity_after" in r.extras:
         out["angular_velocity"] = r.extras["angular_velocity_after"]
-    _add_cor_tangential(e.scene, out)
+    _add_cor_tangential(e.scene, out, throw)
     if not throw:
         out["result"] = r.result
     if _steps:
@@ -259,20 +262,22 @@ def _predict_rigid(e: Experiment, throw: bool) -> dict:
         out["tangential_velocity"] = o["tangential_velocity_after"]
     if "angular_velocity_after" in o:
         out["angular_velocity"] = o["angular_velocity_after"]
-    _add_cor_tangential(e.scene, out)
+    _add_cor_tangential(e.scene, out, throw)
     if not throw:
         out["result"] = o["result"]
     return out
 
 
-def _add_cor_tangential(scene, out: dict) -> None:
+def _add_cor_tangential(scene, out: dict, throw: bool) -> None:
     """``cor_tangential``: the tangential velocity after over before, for a
-    scene that says what it was before."""
+    scene that says what it was before.  (With ``throw=False`` a bad row's
+    scene reaches here unchecked, its outputs NaN: no check raises.)"""
     spec = scene_spec(scene)
     if spec.tangential_before is not None and "tangential_velocity" in out:
-        out["cor_tangential"] = out["tangential_velocity"] / spec.tangential_before(
-            scene
-        )
+        quiet = contextlib.nullcontext() if throw else inputs_guarded()
+        with quiet:
+            before = spec.tangential_before(scene)
+        out["cor_tangential"] = out["tangential_velocity"] / before
 
 
 def _predict_frame(experiment: Experiment, frame, throw: bool):

@@ -31,12 +31,13 @@ import zlib
 from collections.abc import Callable, Mapping, Sequence
 from typing import Any
 
+import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
 from jax.sharding import Mesh, NamedSharding, PartitionSpec
 
-from .._checks import integer
+from .._checks import as_float, integer, is_traced, raise_as_invalid
 from .._io._frames import frame_columns, is_dataframe, to_frame
 from .._laws._jackson_green import JacksonGreen
 from .._materials import Material
@@ -196,7 +197,11 @@ def sweep(
     with the frame's index, one column per output leaf (named by its key).
 
     **Raises:** ``ValueError`` naming the field for mismatched leading axes, an
-    empty sweep, or ``chunk_size <= 0``.
+    empty sweep, or ``chunk_size <= 0``; `diffimpact.InvalidInputError`
+    naming the field, the value and the row for a row outside a scene's
+    domain, when ``fn`` simulates with ``throw=True`` (`normal_impact`'s
+    default ``throw=False`` gives that row the code ``invalid_input`` and
+    NaN outputs instead).
     """
     if is_dataframe(inputs):
         out = sweep(
@@ -280,13 +285,23 @@ def sweep(
 
     # JAX dispatches asynchronously: chunk k+1 is queued before chunk k is
     # copied back, so the devices are not idle during the host transfer.
+    # A traced input check that fails inside `fn` (under jit: JAX's runtime
+    # error) is raised as InvalidInputError naming the sweep's row (exact on
+    # one device, whose program holds the whole chunk).
+    def checked(call, k: int, *args):
+        try:
+            return call(k, *args)
+        except (jax.errors.JaxRuntimeError, ValueError) as err:
+            raise_as_invalid(err, k * chunk if n_dev == 1 else None, n)
+            raise
+
     pending = None
     for k in range(n_chunks):
-        out = run_chunk(k)
+        out = checked(lambda k: run_chunk(k), k)
         if pending is not None:
-            collect(*pending)
+            checked(collect, *pending)
         pending = (k, out)
-    collect(*pending)
+    checked(collect, *pending)
     return jax.tree_util.tree_unflatten(out_def, out_leaves)
 
 
@@ -458,9 +473,10 @@ def check_normal_inputs(columns: Mapping[str, Any]) -> None:
     """Check the columns of a `normal_impact` sweep before running it.
 
     Inside a sweep the inputs are traced, so a bad row (say a zero velocity)
-    only fails at run time, as an ``EquinoxRuntimeError`` from the compiled
-    program.  This builds the scene once from the whole (concrete) columns, so
-    that a bad value raises ``ValueError`` naming the field (e.g.
+    is only found at run time: with ``throw=False`` (the default of
+    `normal_impact`) it gets the code ``invalid_input`` and NaN outputs.
+    This builds the scene once from the whole (concrete) columns, so that a
+    bad value raises ``ValueError`` naming the field (e.g.
     ``NormalImpact.velocity``) before anything is compiled.
     """
     _normal_scene({k: np.asarray(v) for k, v in columns.items()})
@@ -491,8 +507,10 @@ def normal_impact(
       to about 1e-11 and the fastest path (Hertz and Jackson-Green only).
     - `settings`: `diffimpact.SolverSettings` (default settings).
     - `throw`: default False: a row whose impact fails (outside the contact
-      model, say) gets NaN outputs and its code, and the sweep goes on; True
-      stops the whole sweep at the first failure.
+      model, say) or whose input lies outside its domain (``invalid_input``)
+      gets NaN outputs and its code, and the sweep goes on, also when the
+      row is called eagerly; True stops the whole sweep at the first failure
+      or bad value.
 
     **Returns:** dict of `NORMAL_OUTPUTS` (SI: s, -, N, m, m, m/s) and
     ``"result"``, the integer `diffimpact.RESULTS` code of each row
@@ -502,6 +520,12 @@ def normal_impact(
     for other laws, ``functools.partial(normal_impact, law=di.Hertz())``;
     `check_normal_inputs` validates the columns first.
     """
+    if not throw and not is_traced(params):
+        # Eagerly the constructors would refuse a bad value at once; compiled,
+        # the row gets its code, as in a sweep (a loop and a sweep agree).
+        _normal_params(params)  # an unknown column: still an error
+        rows = {k: as_float(v) for k, v in params.items()}
+        return _compiled_row(rows, law, method, settings)
     scene = _normal_scene(params)
     res = simulate(
         scene,
@@ -514,6 +538,11 @@ def normal_impact(
     out = {name: getattr(res, name) for name in NORMAL_OUTPUTS}
     out["result"] = res.result._value
     return out
+
+
+@eqx.filter_jit
+def _compiled_row(params, law, method, settings):
+    return normal_impact(params, law=law, method=method, settings=settings)
 
 
 # The public name (``diffimpact.normal_impact_row``): one row of a sweep.

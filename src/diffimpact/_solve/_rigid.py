@@ -41,11 +41,12 @@ from .._checks import (
     as_float,
     check,
     guard,
+    inputs_guarded,
     is_traced,
     nonnegative,
     require_scalars,
 )
-from .._result import RESULTS, finish, raise_if_failed
+from .._result import RESULTS, finish, raise_if_failed, with_invalid
 from ..scenes._planar import AbstractPlanarScene
 
 RESTITUTION_LAWS = ("newton", "poisson", "energetic")
@@ -193,8 +194,17 @@ def rigid_impact(
             cor, jnp.isfinite(cor) & (cor >= 0) & (cor <= 1), "`cor` must lie in [0, 1]"
         ),
     ]
-    scene, mu, cor = guard((scene, mu, cor), limits)
+    invalid = None
+    if throw:
+        scene, mu, cor = guard((scene, mu, cor), limits)
+    else:
+        (scene, mu, cor), invalid = guard((scene, mu, cor), limits, throw=False)
     traced = is_traced((scene, mu, cor))
+    with inputs_guarded():
+        return _rigid_impact(scene, mu, cor, restitution, throw, traced, invalid)
+
+
+def _rigid_impact(scene, mu, cor, restitution, throw, traced, invalid):
     scene = scene.at_first_contact()  # a free flight first, in closed form
     q0, q_dot0 = scene.initial_state()
     _, j_n, j_t = scene.kinematics(q0)
@@ -245,6 +255,7 @@ def rigid_impact(
         slip_regime=jnp.where(first, 0, jnp.where(sticks, 1, 2)),
     )
     result = RESULTS.where(jammed, RESULTS.never_separates, RESULTS.successful)
+    result = with_invalid(result, invalid)
     out = finish(out, result, throw and traced)
     if throw and not traced:
         raise_if_failed(result)

@@ -15,10 +15,17 @@ import equinox as eqx
 import jax
 import jax.numpy as jnp
 
-from .._checks import guard, is_traced, require_scalars
+from .._checks import guard, inputs_guarded, is_traced, require_scalars
 from .._laws._base import AbstractNormalLaw
 from .._laws._friction import Friction
-from .._result import RESULTS, ImpactResult, finish, first_failure, raise_if_failed
+from .._result import (
+    RESULTS,
+    ImpactResult,
+    finish,
+    first_failure,
+    raise_if_failed,
+    with_invalid,
+)
 from ..scenes._base import AbstractScene
 from ..scenes._planar import AbstractPlanarScene
 from ._bind import _bind, within_model
@@ -98,13 +105,18 @@ def _exact_tangential(scene, friction) -> bool:
 
 
 @eqx.filter_jit
-def _simulate(scene, law, method, settings, n_history, friction, throw):
-    planar = isinstance(scene, AbstractPlanarScene)
-    if planar:  # free flight to the contact in closed form, not integrated
-        scene = scene.at_first_contact()
-    solver = _SOLVERS[route(scene, law, friction, method, n_history)]
-    res = solver(scene, law, friction, settings, n_history)
-    return finish(res, res.result, throw)
+def _simulate(scene, law, method, settings, n_history, friction, throw, invalid=None):
+    # `invalid`: from `guard(..., throw=False)` (a bad row is solved anyway,
+    # without the scenes' own checks, and reported as `invalid_input`).
+    with inputs_guarded():
+        planar = isinstance(scene, AbstractPlanarScene)
+        if planar:  # free flight to the contact in closed form, not integrated
+            scene = scene.at_first_contact()
+        solver = _SOLVERS[route(scene, law, friction, method, n_history)]
+        res = solver(scene, law, friction, settings, n_history)
+    result = with_invalid(res.result, invalid)
+    res = eqx.tree_at(lambda r: r.result, res, result)
+    return finish(res, result, throw)
 
 
 def route(scene, law, friction, method: str, n_history: int) -> str:
@@ -271,14 +283,18 @@ def simulate(
       which solves the decoupled 1-DOF normal problem (no tangential state).
     - `n_history`: number of equally spaced samples of deflection, velocity and
       force to return in ``result.history`` (``"smooth"`` only; 0 = none).
-    - `throw`: what a failed impact does (outside the contact model, never
-      separating, out of steps).  True (default): raise, eagerly as a
-      `SimulationError` subclass (`OutsideModelError`, ...), under
-      ``jit``/``vmap`` as an ``equinox`` runtime error with the same message.
-      False: return it with NaN in every floating-point output and the reason
-      in ``result.result`` (a `RESULTS` code), leaving the other
-      elements of a ``vmap`` batch untouched.  Invalid inputs (a negative
-      modulus, a NaN speed) always raise, naming the field.
+    - `throw`: what a failed impact or an invalid input value does.  True
+      (default): raise, eagerly as a `SimulationError` subclass
+      (`OutsideModelError`, ...) or, for an input outside its domain (a
+      negative modulus, a NaN speed), `InvalidInputError` naming the field
+      and the value; under ``jit``/``vmap`` as an ``equinox`` runtime error
+      with the same message (docs/howto/layer.md).  False: never raise for a
+      value: return NaN in every floating-point output and the reason in
+      ``result.result`` (a `RESULTS` code, ``invalid_input`` for a bad
+      input), leaving the other elements of a ``vmap`` batch untouched.
+      Wrong types and structure (a string for a scene, an unknown method)
+      raise either way, and so does building a module from a concrete bad
+      value (``Material(205e9, 0.9)``: no result exists to carry a code).
 
     **Returns:** an `ImpactResult`.
 
@@ -352,10 +368,16 @@ def simulate(
     # cannot be dropped (see `_checks.guard`).
     for name, part in (("scene", scene), ("law", law), ("friction", friction)):
         require_scalars(part, name)
-    if _guarded:
+    # (an array either way: eager calls with and without throw share a program)
+    invalid = jnp.zeros((), bool)
+    if _guarded and throw:
         scene, law, friction = guard((scene, law, friction))
+    elif _guarded:
+        (scene, law, friction), invalid = guard((scene, law, friction), throw=False)
     traced = is_traced((scene, law, friction))
-    res = _simulate(scene, law, method, settings, n_history, friction, throw and traced)
+    res = _simulate(
+        scene, law, method, settings, n_history, friction, throw and traced, invalid
+    )
     if throw and not traced:
         raise_if_failed(res.result)
     return res

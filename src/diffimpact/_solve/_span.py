@@ -61,15 +61,17 @@ import jax.numpy as jnp
 
 from .._checks import (
     as_float,
+    check,
+    finite,
     guard,
+    inputs_guarded,
+    invalid,
     is_traced,
-    require,
-    require_finite,
     require_scalars,
 )
 from .._laws._base import AbstractNormalLaw
 from .._laws._friction import Friction
-from .._result import finish, raise_if_failed
+from .._result import finish, raise_if_failed, with_invalid
 from ..scenes._mechanisms import AbstractMechanism
 from ._flat import Flat, solve_result
 from ._settings import stored_steps_adjoint
@@ -149,7 +151,15 @@ def _history(p: _Span, taus, ys, valid, y0, e0):
 
 
 @eqx.filter_jit
-def _simulate_span(scene, law, t_span, friction, settings, n_save, throw):
+def _simulate_span(scene, law, t_span, friction, settings, n_save, throw, bad=None):
+    with inputs_guarded():
+        out = _span_solve(scene, law, t_span, friction, settings, n_save)
+    result = with_invalid(out.result, bad)
+    out = eqx.tree_at(lambda r: r.result, out, result)
+    return finish(out, result, throw)
+
+
+def _span_solve(scene, law, t_span, friction, settings, n_save):
     p, y0 = _setup(scene, law, friction, settings)
     q0, q_dot0 = scene.initial_state()
     nc = p.nc
@@ -274,7 +284,7 @@ def _simulate_span(scene, law, t_span, friction, settings, n_save, throw):
         )
     )
     stats = sol.stats
-    out = SpanResult(
+    return SpanResult(
         history=history,
         steps=steps,
         impacts=impacts,
@@ -294,7 +304,6 @@ def _simulate_span(scene, law, t_span, friction, settings, n_save, throw):
         num_rejected_steps=stats["num_rejected_steps"],
         result=result,
     )
-    return finish(out, result, throw)
 
 
 def simulate_span(
@@ -322,8 +331,9 @@ def simulate_span(
     - `n_save`: number of equally spaced samples in ``result.history``
       (0: none; ``result.steps`` always has every accepted step).
     - `throw`: as in `diffimpact.simulate`: True raises when the solve
-      fails (out of steps, solver failure); False returns NaN outputs with the
-      reason in ``result.result``.
+      fails (out of steps, solver failure) or an input lies outside its
+      domain; False returns NaN outputs with the reason in ``result.result``
+      (``invalid_input`` for a bad value, ``t_span`` included).
 
     **Returns:** a `SpanResult`.  ``jax.jit``, ``jax.grad`` and
     ``jax.vmap`` compose with it; every number of the scene, law and friction
@@ -367,20 +377,32 @@ def simulate_span(
     if len(t_span) != 2:
         raise ValueError("`t_span` must be (t0, t1) in seconds")
     t0, t1 = as_float(t_span[0]), as_float(t_span[1])
-    t0 = require_finite(t0, "t_span[0]")
-    t1 = require(
-        t1,
-        jnp.isfinite(t1) & (t1 > t0),
-        "`t_span[1]` must be finite and greater than `t_span[0]` (seconds)",
-    )
-    t_span = (t0, t1)
+    times = [
+        finite(t0, "t_span[0]"),
+        check(
+            t1,
+            jnp.isfinite(t1) & (t1 > t0),
+            "`t_span[1]` must be finite and greater than `t_span[0]` (seconds)",
+        ),
+    ]
     # As in `simulate`: eagerly a ValueError, traced a threaded check.
     for name, part in (("scene", scene), ("law", law), ("friction", friction)):
         require_scalars(part, name)
-    scene, law, friction = guard((scene, law, friction))
+    parts = (scene, law, friction, t0, t1)
+    if throw:
+        scene, law, friction, t0, t1 = guard(parts, times)
+        bad = jnp.zeros((), bool)  # (as in `simulate`: one program either way)
+    else:
+        (scene, law, friction, t0, t1), bad = guard(parts, times, throw=False)
+        # A bad span would trip diffrax's own checks: a short valid one
+        # instead (the row's outputs are NaN).
+        bad_times = invalid(times)
+        t0 = jnp.where(bad_times, 0.0, t0)
+        t1 = jnp.where(bad_times, 1e-6, t1)
+    t_span = (t0, t1)
     traced = is_traced((scene, law, friction, t_span))
     res = _simulate_span(
-        scene, law, t_span, friction, settings, n_save, throw and traced
+        scene, law, t_span, friction, settings, n_save, throw and traced, bad
     )
     if throw and not traced:
         raise_if_failed(res.result)
