@@ -335,7 +335,8 @@ class _Chunks:
         # JAX dispatches asynchronously: chunk k+1 is queued before chunk k
         # is copied back, so the devices are not idle during the transfer.
         pending = None
-        for k in range(first // self.chunk, self.n_chunks):
+        start = self.n_chunks if first >= self.n else first // self.chunk
+        for k in range(start, self.n_chunks):
             out = self._run(k)
             if pending is not None:
                 yield self._collect(*pending)
