@@ -264,3 +264,133 @@ def test_command_line_interrupt_keeps_the_rows_and_names_resume(
     assert main([*argv, "--out", str(tmp_path / "whole")]) == 0
     want = (tmp_path / "whole" / "sweep.csv").read_bytes()
     assert (out / "sweep.csv").read_bytes() == want
+
+
+# --------------------------------------------------------------------------
+# Fits
+# --------------------------------------------------------------------------
+
+
+def _normal_data(tmp_path):
+    """Normal impacts made by diffimpact (S_y = 400 MPa), written with few
+    digits (tests/test_cli_fit.py)."""
+    p = tmp_path / "normal.csv"
+    p.write_text(
+        "# test data\nscene,impact_velocity_m_s,cor_normal,contact_time_us\n"
+        "normal_impact,0.3,0.6381,78.10\nnormal_impact,1.0,0.4898,59.96\n"
+        "normal_impact,3.0,0.4374,50.94\n"
+    )
+    return p
+
+
+# far from the optimum, so that the fit takes several iterations
+_FIT = dict(free="yield_strength", start={"yield_strength": 100e6})
+
+
+def _close(a, b):
+    """Two estimates of the same fit from different starts: within its
+    tolerances (a step of rtol = 1e-6 of the parameter, or 0.1 standard
+    errors: diffimpact.fit's stopping rules)."""
+    tol = 0.1 * b.std_errors + 1e-6 * np.abs(b.values)
+    return np.all(np.abs(a.values - b.values) <= tol), (a.values, b.values, tol)
+
+
+def test_an_interrupted_fit_restarts_from_its_last_iterate(tmp_path):
+    import diffimpact as di
+
+    data = _normal_data(tmp_path)
+    whole = di.fit(data, **_FIT)
+    assert whole.converged and whole.iterations >= 4
+    path = tmp_path / "progress.json"
+    seen = []
+
+    def stop(iteration, parameters, cost):
+        # the iterate is on disk when the callback sees it
+        assert json.loads(path.read_text())["parameters"] == parameters
+        seen.append((iteration, parameters, cost))
+        if len(seen) == 2:
+            raise KeyboardInterrupt
+
+    with pytest.raises(KeyboardInterrupt):
+        di.fit(data, **_FIT, checkpoint=path, callback=stop)
+    saved = json.loads(path.read_text())
+    assert saved["iteration"] == seen[-1][0] and saved["cost"] == seen[-1][2]
+    assert saved["free"] == ["yield_strength"] and saved["rows"] == 3
+    assert seen[-1][2] < seen[0][2]  # an accepted step lowers the cost
+    s_y = saved["parameters"]["yield_strength"]
+    assert 100e6 < s_y < whole.values[0]
+
+    # an existing checkpoint is not replaced unasked
+    with pytest.raises(FileExistsError, match="resume=True"):
+        di.fit(data, **_FIT, checkpoint=path)
+    # nor restarted with other free parameters, quantities or data
+    with pytest.raises(ValueError, match="saved by a fit of yield_strength, not"):
+        di.fit(data, free="yield_strength,youngs_modulus", checkpoint=path,
+               resume=True)  # fmt: skip
+    with pytest.raises(ValueError, match="saved by a fit of cor_normal, contact_t"):
+        di.fit(data, **_FIT, outputs=["cor_normal"], checkpoint=path, resume=True)
+    other = tmp_path / "other.csv"
+    other.write_text(data.read_text().replace("0.4374", "0.4375"))
+    with pytest.raises(ValueError, match="saved by a fit of other data"):
+        di.fit(other, **_FIT, checkpoint=path, resume=True)
+    with pytest.raises(ValueError, match="`resume=True` needs `checkpoint`"):
+        di.fit(data, **_FIT, resume=True)
+    assert json.loads(path.read_text()) == saved
+
+    resumed = di.fit(data, **_FIT, checkpoint=path, resume=True)
+    assert resumed.converged
+    assert resumed.start[0] == s_y  # from the saved iterate
+    ok, why = _close(resumed, whole)
+    assert ok, why
+    # the optax minimisers save their iterates too
+    adam = tmp_path / "adam.json"
+    di.fit(data, **_FIT, solver="adam", max_steps=3, checkpoint=adam)
+    assert json.loads(adam.read_text())["iteration"] == 2
+
+
+def test_command_line_fit_resumes_and_leaves_no_empty_folder(
+    tmp_path, capsys, monkeypatch
+):
+    """Ctrl-C during ``diffimpact fit``: before the first iterate, no folder
+    is left; after, fit_progress.json is, and the same command with --resume
+    restarts from it and reaches the uninterrupted estimate."""
+    import diffimpact as di
+    from diffimpact._inference import _checkpoint
+
+    data, out = _normal_data(tmp_path), tmp_path / "out"
+    argv = ["fit", str(data), "--free", "yield_strength", "--start",
+            "yield_strength=100e6", "--out", str(out), "--no-progress"]  # fmt: skip
+    save = _checkpoint.Checkpoint.save
+    calls = []
+
+    def interrupt_at(k):
+        def patched(self, *args):
+            calls.append(args)
+            if len(calls) > k:
+                raise KeyboardInterrupt
+            save(self, *args)
+
+        return patched
+
+    monkeypatch.setattr(_checkpoint.Checkpoint, "save", interrupt_at(0))
+    assert main(argv) == 130
+    assert not out.exists()
+    calls.clear()
+    monkeypatch.setattr(_checkpoint.Checkpoint, "save", interrupt_at(2))
+    assert main(argv) == 130
+    err = capsys.readouterr().err
+    assert "fit_progress.json" in err and "--resume" in err
+    assert sorted(p.name for p in out.iterdir()) == ["fit_progress.json"]
+    monkeypatch.setattr(_checkpoint.Checkpoint, "save", save)
+    assert main(argv) == 2  # neither replaced nor ignored unasked
+    assert "pass --resume" in capsys.readouterr().err
+    assert main([*argv, "--resume", "--force"]) == 2
+    assert "give one" in capsys.readouterr().err
+    assert main([*argv, "--resume"]) == 0
+    printed = capsys.readouterr().out
+    assert "restarting from" in printed and "iteration 2" in printed
+    assert not (out / "fit_progress.json").exists()  # spent
+    fitted = json.loads((out / "fit.json").read_text())["parameters"]
+    whole = di.fit(data, **_FIT)
+    tol = 0.1 * whole.std_errors[0] + 1e-6 * whole.values[0]
+    assert abs(fitted["yield_strength"]["value"] - whole.values[0]) <= tol
