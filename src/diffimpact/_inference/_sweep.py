@@ -168,7 +168,7 @@ def sweep(
       ``chunk_size / len(devices)`` consecutive rows of every chunk.
     - `progress`: draw a text progress bar on stderr (process 0 only).
     - `out`: a path: also write the rows to this CSV file as each chunk
-      finishes (`sweep_file_format` below), so that an interrupted sweep
+      finishes (**The file** below), so that an interrupted sweep
       loses nothing.  An existing file is never replaced: ``FileExistsError``.
     - `resume`: with `out`: continue the sweep that file holds (or start it,
       if there is none).  Its rows are kept, not computed again, and the
