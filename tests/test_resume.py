@@ -394,3 +394,20 @@ def test_command_line_fit_resumes_and_leaves_no_empty_folder(
     whole = di.fit(data, **_FIT)
     tol = 0.1 * whole.std_errors[0] + 1e-6 * whole.values[0]
     assert abs(fitted["yield_strength"]["value"] - whole.values[0]) <= tol
+
+
+def test_an_interrupted_learn_leaves_no_empty_folder(tmp_path, monkeypatch):
+    import pathlib
+
+    import diffimpact as di
+
+    ellipse = pathlib.Path(__file__).parent.parent / "data"
+    ellipse = ellipse / "synthetic_ellipse_noise2pct.csv"
+
+    def interrupted(*args, **kwargs):
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(di, "train", interrupted)
+    out = tmp_path / "learn"
+    assert main(["learn", str(ellipse), "--out", str(out), "--no-network"]) == 130
+    assert not out.exists()
