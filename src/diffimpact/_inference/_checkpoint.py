@@ -105,7 +105,10 @@ class Checkpoint:
             raise ValueError(f"{where}: it was saved by a fit of other data")
 
     def on_accept(self, solver: str, rows: int):
-        """The ``on_accept`` of the iterations: save and call back."""
+        """The ``on_accept`` of the iterations: save and call back (None
+        when there is neither a file nor a callback)."""
+        if self.path is None and self.callback is None:
+            return None
 
         def accept(u, step, cost):
             problem = self.problem
