@@ -255,6 +255,9 @@ def test_a_killed_command_line_sweep_resumes_bit_for_bit(tmp_path, capsys, n):
     text = csv.read_bytes()
     rows = text.count(b"\n") - 1
     assert 0 < rows < n, rows
+    if text.endswith(b"\n"):  # a write cut short, as a kill can leave one
+        with open(csv, "ab") as fh:
+            fh.write(text.splitlines(keepends=True)[-1][:20])
     assert main([*argv, "--out", str(killed), "--resume"]) == 0
     out = capsys.readouterr().out
     assert f"resumed: {rows // 256 * 256:,} rows kept from sweep.csv" in out
