@@ -273,10 +273,13 @@ class _Table:
         digits: for the plot and the summary)."""
         import numpy as np
 
-        from .._result import _NAMES
+        from .._result import RESULTS
 
-        codes = {name: code for code, name in _NAMES.items()}
         cells = [line.split(",") for line in lines.decode().splitlines()]
+        codes = {
+            label: int(getattr(RESULTS, label)._value)
+            for label in {c[-1] for c in cells}
+        }
         first = len(self.names)
         out = {
             name: np.array([float(c[first + j]) for c in cells])

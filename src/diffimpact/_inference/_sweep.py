@@ -43,6 +43,7 @@ from .._solve._settings import SolverSettings
 from .._solve._simulate import simulate
 from ..scenes import NormalImpact
 from ._progress import Progress
+from ._sweep_file import RowFile, inputs_digest
 
 # Rows per device in a chunk by default.  On CPU a small chunk keeps the
 # quadrature's per-row temporaries (32 x 16 Gauss nodes, ~25 kB a row) in
@@ -227,8 +228,6 @@ def sweep(
     engine = plan(fn, inputs, chunk_size=chunk_size, devices=devices)
     if out is None:
         return run_sweep(engine, progress=progress, on_chunk=on_chunk)
-    from ._sweep_file import RowFile
-
     table = _Table(engine)
     rows = RowFile(
         out,
@@ -486,8 +485,6 @@ class _Table:
         self.row = ",".join(formats) + "\n"
 
     def settings(self) -> dict:
-        from ._sweep_file import inputs_digest
-
         e = self.engine
         return {
             "rows": e.n,
