@@ -226,6 +226,7 @@ def test_cli_writes_csv_and_png_and_refuses_to_overwrite(tmp_path, capsys):
     assert csv.read_bytes() == before
     # Only the PNG there: still refused, naming it.
     csv.unlink()
+    (out / "sweep.csv.json").unlink()
     assert _cli(argv) == 2
     assert "sweep.png already exists" in capsys.readouterr().err
     assert not csv.exists()

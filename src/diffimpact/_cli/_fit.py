@@ -10,6 +10,9 @@ name and in the file's units), ``fit.png`` (measured vs predicted, residuals)
 and ``loop.png`` (normal force against interference for the median row).
 Nothing in DIR is overwritten without ``--force``; the check happens before
 the fit starts.
+While it iterates, ``fit_progress.json`` in DIR holds the last accepted
+iterate; an interrupted fit restarts from it with the same command and
+``--resume``, and a finished one removes it.
 """
 
 from __future__ import annotations
@@ -31,6 +34,8 @@ from ._outputs import (
 )
 
 _OUTPUT_FILES = ("fit.json", "residuals.csv", "fit.png", "loop.png")
+# the last accepted iterate, while the fit runs (`diffimpact.fit`'s checkpoint)
+_PROGRESS = "fit_progress.json"
 _HOLDOUT_FILES = ("holdout.csv", "holdout.png")
 _POSTERIOR_FILES = ("posterior.csv", "posterior.json", "corner.png", "predictive.png")
 _LAWS = {"jackson-green": "JacksonGreen", "hertz": "Hertz"}
@@ -179,6 +184,12 @@ def register(sub) -> None:
     )
     p.add_argument("--out", default=None, help="output folder (default fit-<data>)")
     p.add_argument("--force", action="store_true", help="overwrite outputs in --out")
+    p.add_argument(
+        "--resume",
+        action="store_true",
+        help=f"restart an interrupted fit from the last accepted iterate in "
+        f"--out ({_PROGRESS}; the same command, with --resume)",
+    )
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
     p.set_defaults(func=run)
 
@@ -227,6 +238,16 @@ def run(args) -> int:
     if args.holdout is not None and not 0.0 < args.holdout < 1.0:
         raise ValueError(f"--holdout must be a fraction in (0, 1), got {args.holdout}")
     _check_posterior_options(args)
+    if args.resume and args.force:
+        raise ValueError(
+            "--resume restarts the fit in --out from its progress, --force starts "
+            "it again: give one"
+        )
+    if args.resume and args.holdout is not None:
+        raise ValueError(
+            "--resume restarts a fit (with or without --posterior), not the "
+            "fits of --holdout"
+        )
     files = _files(args)
     existing = [f for f in files if os.path.exists(os.path.join(out, f))]
     if existing and not args.force:
@@ -234,15 +255,33 @@ def run(args) -> int:
             f"{out}: would overwrite {', '.join(existing)}; pass --force or choose "
             "another --out"
         )
+    progress = os.path.join(out, _PROGRESS)
+    if os.path.exists(progress) and not (args.resume or args.force):
+        raise ValueError(
+            f"{progress} holds the progress of an interrupted fit: pass --resume "
+            "to restart from it, or --force to start again"
+        )
     # the folder exists and can be written, before minutes of fitting
     created = writable_folder(out)
+    if args.force and os.path.exists(progress):
+        os.remove(progress)
     try:
         return _fit_and_write(args, out)
-    except BaseException:
-        # a failed fit leaves no empty folder of its own making behind
+    except KeyboardInterrupt:
+        if os.path.exists(progress):
+            with open(progress) as fh:
+                saved = json.load(fh)
+            print(
+                f"\nthe last accepted iterate (iteration {saved['iteration']}, cost "
+                f"{saved['cost']:.6g}) is in {progress}: the same command with "
+                "--resume restarts from it",
+                file=sys.stderr,
+            )
+        raise
+    finally:
+        # a failed or interrupted fit leaves no empty folder of its own making
         if created and os.path.isdir(out) and not os.listdir(out):
             os.rmdir(out)
-        raise
 
 
 def _fit_and_write(args, out) -> int:
@@ -319,6 +358,16 @@ def _fit_and_write(args, out) -> int:
             args, data, experiment, free, dict(start=start, bounds=bounds), out
         )
     else:
+        progress = os.path.join(out, _PROGRESS)
+        if args.resume and os.path.exists(progress):
+            with open(progress) as fh:
+                saved = json.load(fh)
+            print(
+                f"restarting from {progress}: iteration {saved['iteration']}, "
+                f"cost {saved['cost']:.6g}"
+            )
+        elif args.resume:
+            print(f"(no {progress}: the fit starts from the start values)")
         print(f"fitting {args.free} to {data.n} rows of {args.data} ({scene})")
         result = di.fit(
             data,
@@ -327,6 +376,8 @@ def _fit_and_write(args, out) -> int:
             start=start,
             bounds=bounds,
             progress=not args.no_progress,
+            checkpoint=progress,
+            resume=args.resume,
             **options,
         )
     print(result.summary())
@@ -342,6 +393,9 @@ def _fit_and_write(args, out) -> int:
             indent=2,
             allow_nan=False,  # strict JSON: to_dict writes null for inf
         )
+    # fit.json holds the result now: the progress is spent
+    if os.path.exists(os.path.join(out, _PROGRESS)):
+        os.remove(os.path.join(out, _PROGRESS))
     write_residuals(result, os.path.join(out, "residuals.csv"), args.force)
     if not args.no_progress:  # a few seconds of matplotlib and a solve
         print("writing fit.png and loop.png...", file=sys.stderr, flush=True)

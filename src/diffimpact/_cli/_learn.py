@@ -164,7 +164,20 @@ def run(args) -> int:
         )
     order = np.random.default_rng(args.seed).permutation(data.n)
     test, train = np.sort(order[:n_test]), np.sort(order[n_test:])
-    writable_folder(out)
+    created = writable_folder(out)
+    try:
+        return _learn_and_write(args, data, experiment, models, train, test, out)
+    finally:
+        # an interrupted or failed run leaves no empty folder of its making
+        if created and os.path.isdir(out) and not os.listdir(out):
+            os.rmdir(out)
+
+
+def _learn_and_write(args, data, experiment, models, train, test, out) -> int:
+    import numpy as np
+
+    import diffimpact as di
+
     results, errors = {}, {}
     for name, model in models.items():
         print(f"training {name} on {len(train)} rows...", flush=True)

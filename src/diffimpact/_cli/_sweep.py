@@ -16,9 +16,12 @@ not given take the defaults of `diffimpact._inference._sweep.NORMAL_DEFAULTS` (a
 ``method="quadrature"`` (exact to about 1e-11), in chunks over every device
 JAX sees.
 
-Writes ``OUT/sweep.csv`` and ``OUT/sweep.png`` (a heat map for two swept axes,
-a line plot for one, a scatter plot otherwise) and never overwrites either
-without ``--force``.
+Writes ``OUT/sweep.csv`` as each chunk of rows finishes, its settings in
+``OUT/sweep.csv.json``, and at the end ``OUT/sweep.png`` (a heat map for two
+swept axes, a line plot for one, a scatter plot otherwise); never overwrites
+any without ``--force``.  ``--resume`` goes on with an interrupted sweep (the
+same command, ``--resume`` added): the rows in ``sweep.csv`` are kept, and the
+finished file is the same, bit for bit, as an uninterrupted run's.
 
 Several machines: ``--distributed`` joins JAX's multi-process runtime
 (``jax.distributed.initialize()``) before anything initialises JAX's backend
@@ -60,7 +63,7 @@ _OUTPUTS = (
     ("permanent_deformation", "m", "permanent deformation [m]"),
     ("rebound_velocity", "m_s", "rebound velocity [m/s]"),
 )
-_FILES = ("sweep.csv", "sweep.png")
+_FILES = ("sweep.csv", "sweep.csv.json", "sweep.png")
 
 
 def _column(name: str, unit: str) -> str:
@@ -78,15 +81,25 @@ def register(subparsers) -> argparse.ArgumentParser:
             "--sample N random rows), solved by the exact quadrature in vmapped "
             "chunks on every JAX device. Axis forms: VALUE, V1,V2,..., "
             "LO:HI:N, LO:HI:N:log; with --sample: LO:HI or LO:HI:log. "
-            "Writes OUT/sweep.csv (SI units in the column names) and "
-            "OUT/sweep.png."
+            "Writes OUT/sweep.csv (SI units in the column names) as the chunks "
+            "finish, its settings in OUT/sweep.csv.json, and OUT/sweep.png; "
+            "--resume goes on with an interrupted sweep."
         ),
     )
     for _, flag, _, text in _INPUTS:
         p.add_argument(flag, metavar="SPEC", default=None, help=text)
     p.add_argument("--out", required=True, type=Path, help="output directory")
     p.add_argument(
-        "--force", action="store_true", help="overwrite existing sweep.csv/.png"
+        "--force",
+        action="store_true",
+        help="overwrite an existing sweep.csv, its settings and sweep.png",
+    )
+    p.add_argument(
+        "--resume",
+        action="store_true",
+        help="go on with the interrupted sweep in OUT/sweep.csv (the same "
+        "command, with --resume): its rows are kept, the rest computed and "
+        "appended; refused if the settings differ",
     )
     p.add_argument(
         "--distributed",
@@ -220,36 +233,62 @@ def _build_inputs(args):
 # --------------------------------------------------------------------------
 
 
-def _write_csv(path: Path, inputs, outputs, force: bool):
-    import io
+class _Table:
+    """The rows of ``sweep.csv``: the inputs, then the outputs (12 significant
+    digits: the quadrature is exact to about 1e-11), then the result's name
+    (``successful``, ``outside_model``, ...)."""
 
-    import numpy as np
+    def __init__(self, inputs):
+        self.inputs = inputs
+        self.names = [(n, u) for n, _, u, _ in _INPUTS if n in inputs]
+        self.columns = [_column(n, u) for n, u in self.names] + [
+            _column(n, u) for n, u, _ in _OUTPUTS
+        ]
+        self.header = ",".join([*self.columns, "result"])
+        self._labels = {}
 
-    from .._result import result_name
+    def format_rows(self, start: int, stop: int, out) -> str:
+        import io
 
-    names = [(n, u) for n, _, u, _ in _INPUTS if n in inputs]
-    header = [_column(n, u) for n, u in names] + [_column(n, u) for n, u, _ in _OUTPUTS]
-    table = np.column_stack(
-        [inputs[n] for n, _ in names] + [outputs[n] for n, _, _ in _OUTPUTS]
-    )
-    codes = outputs["result"]
-    labels = {int(c): result_name(c) for c in np.unique(codes)}
-    with open_new(path, force) as f:
-        f.write(",".join([*header, "result"]) + "\n")
-        # 12 significant digits: the quadrature is exact to about 1e-11.
-        # Written in blocks, so the formatted text never holds the whole table;
-        # each row ends with its result ("successful", "outside_model", ...).
-        for start in range(0, len(table), 65536):
-            block = io.StringIO()
-            np.savetxt(block, table[start : start + 65536], fmt="%.12g", delimiter=",")
-            rows = block.getvalue().splitlines()
-            tail = codes[start : start + 65536]
-            f.write(
-                "".join(
-                    f"{row},{labels[int(c)]}\n"
-                    for row, c in zip(rows, tail, strict=True)
-                )
-            )
+        import numpy as np
+
+        from .._result import result_name
+
+        table = np.column_stack(
+            [self.inputs[n][start:stop] for n, _ in self.names]
+            + [out[n] for n, _, _ in _OUTPUTS]
+        )
+        block = io.StringIO()
+        np.savetxt(block, table, fmt="%.12g", delimiter=",")
+        labels = self._labels
+        for c in np.unique(out["result"]):
+            labels.setdefault(int(c), result_name(c))
+        return "".join(
+            f"{row},{labels[int(c)]}\n"
+            for row, c in zip(block.getvalue().splitlines(), out["result"], strict=True)
+        )
+
+    def parse_rows(self, lines: bytes, struct):
+        """The outputs of the rows an interrupted run wrote (to the file's 12
+        digits: for the plot and the summary)."""
+        import numpy as np
+
+        from .._result import RESULTS
+
+        cells = [line.split(",") for line in lines.decode().splitlines()]
+        codes = {
+            label: int(getattr(RESULTS, label)._value)
+            for label in {c[-1] for c in cells}
+        }
+        first = len(self.names)
+        out = {
+            name: np.array([float(c[first + j]) for c in cells])
+            for j, (name, _, _) in enumerate(_OUTPUTS)
+        }
+        out["result"] = np.array(
+            [codes[c[-1]] for c in cells], dtype=struct["result"].dtype
+        )
+        return out
 
 
 def _plot(path: Path, inputs, outputs, swept, log, shape, law: str, force: bool):
@@ -337,15 +376,35 @@ def _run(args) -> int:
         jax.distributed.initialize()
     if args.chunk_size is not None and args.chunk_size < 1:
         raise ValueError(f"--chunk-size must be >= 1, got {args.chunk_size}")
+    if args.resume and args.force:
+        raise ValueError(
+            "--resume goes on with the sweep in --out, --force starts it again: "
+            "give one"
+        )
     out_dir: Path = args.out
     paths = [out_dir / f for f in _FILES]
     # Refuse before spending minutes on the sweep (the writes check again).
-    if not args.force:
+    if not args.force and not args.resume:
         for path in paths:
             if path.exists():
-                raise ValueError(f"{path} already exists; pass --force to overwrite it")
-    writable_folder(out_dir)
+                more = " or --resume to go on with it" if path == paths[0] else ""
+                raise ValueError(
+                    f"{path} already exists; pass --force to overwrite it{more}"
+                )
+    created = writable_folder(out_dir)
+    try:
+        return _sweep(args, out_dir, paths)
+    except BaseException:
+        # an interrupted or failed sweep leaves no empty folder of its making
+        if created and out_dir.is_dir() and not any(out_dir.iterdir()):
+            out_dir.rmdir()
+        raise
 
+
+_ROWS = {}  # --law: the row function
+
+
+def _sweep(args, out_dir, paths) -> int:
     import functools
 
     import jax
@@ -355,10 +414,11 @@ def _run(args) -> int:
     from .._inference._sweep import (
         NORMAL_DEFAULTS,
         check_normal_inputs,
-        default_chunk_size,
         normal_impact,
-        sweep,
+        plan,
+        run_sweep,
     )
+    from .._inference._sweep_file import RowFile, inputs_digest
 
     inputs, swept, log, shape = _build_inputs(args)
     check_normal_inputs(inputs)  # a bad value: ValueError naming it, no compile
@@ -367,22 +427,54 @@ def _run(args) -> int:
             "--yield-strength: the Hertz law is elastic, its impacts do not "
             "depend on the yield strength; sweep it with --law jackson-green"
         )
-    law = di.JacksonGreen() if args.law == "jackson-green" else di.Hertz()
+    # One row function per law, the same object for every run in this
+    # process: a second sweep (a resumed one, say) reuses the compiled program.
+    if args.law not in _ROWS:
+        law = di.JacksonGreen() if args.law == "jackson-green" else di.Hertz()
+        _ROWS[args.law] = functools.partial(normal_impact, law=law)
     n = len(next(iter(inputs.values())))
-    chunk = args.chunk_size or default_chunk_size()
+    engine = plan(_ROWS[args.law], inputs, chunk_size=args.chunk_size)
+    table = _Table(inputs)
+    # What a resumed run must share with the interrupted one (its flags as
+    # given, and what they make), so that its rows come from the same
+    # program on the same chunks.
+    settings = {
+        **{flag: getattr(args, name) for name, flag, _, _ in _INPUTS},
+        "--sample": args.sample,
+        "--seed": None if args.sample is None else (args.seed or 0),
+        "--law": args.law,
+        "--chunk-size": engine.chunk,
+        "devices": f"{len(engine.devices)} {engine.devices[0].platform}",
+        "processes": jax.process_count(),
+        "rows": n,
+        "columns": table.columns,
+        "inputs_sha256": inputs_digest(list(inputs), list(inputs.values())),
+    }
+    mode = "resume" if args.resume else "force" if args.force else "new"
+    rows = RowFile(paths[0], table.header, settings, n, engine.chunk, mode)
     t0 = time.perf_counter()
-    outputs = sweep(
-        functools.partial(normal_impact, law=law),
-        inputs,
-        chunk_size=chunk,
-        progress=not args.no_progress,
-    )
+    try:
+        outputs = run_sweep(
+            engine,
+            progress=not args.no_progress,
+            rows=rows,
+            format_rows=table.format_rows,
+            parse_rows=table.parse_rows,
+        )
+    except KeyboardInterrupt:
+        if rows.written and jax.process_index() == 0:
+            print(
+                f"\n{rows.written:,} of {n:,} rows are in {paths[0]}: the same "
+                "command with --resume goes on from there",
+                file=sys.stderr,
+            )
+        raise
     wall = time.perf_counter() - t0
     if jax.process_index() != 0:  # one writer under jax.distributed
         return 0
-    out_dir.mkdir(parents=True, exist_ok=True)
-    _write_csv(paths[0], inputs, outputs, args.force)
-    _plot(paths[1], inputs, outputs, swept, log, shape, args.law, args.force)
+    # --resume: the plot of the same sweep, replaced if a run got that far
+    _plot(paths[2], inputs, outputs, swept, log, shape, args.law,
+          args.force or args.resume)  # fmt: skip
 
     defaults = {k: v for k, v in NORMAL_DEFAULTS.items() if k not in inputs}
     seed = args.seed or 0
@@ -395,19 +487,29 @@ def _run(args) -> int:
         if cor_ok.size
         else ""
     )
+    computed = n - rows.kept
+    kept = (
+        f"  resumed: {rows.kept:,} rows kept from {paths[0].name}, "
+        f"{computed:,} computed\n"
+        if args.resume
+        else ""
+    )
+    rate = computed / wall
     print(
         f"diffimpact sweep: {n:,} {args.law} normal impacts (quadrature) on "
-        f"{len(jax.devices())} device(s), chunks of {min(chunk, n):,}\n"
+        f"{len(jax.devices())} device(s), chunks of {engine.chunk:,}\n"
         f"  swept: {', '.join(swept) or 'nothing (one impact)'}"
         + (f" ({args.sample:,} random rows, seed {seed})" if args.sample else "")
         + "\n  defaults: "
         + ", ".join(f"{k}={v:g}" for k, v in defaults.items())
         + ("" if "mass" in inputs else ", mass=4/3 pi radius^3 density")
-        + f"\n  wall time {wall:.2f} s (including compilation), "
-        f"{n / wall:,.{0 if n / wall >= 100 else 2}f} impacts/s\n"
+        + "\n"
+        + kept
+        + f"  wall time {wall:.2f} s (including compilation), "
+        f"{rate:,.{0 if rate >= 100 else 2}f} impacts/s\n"
         + cor_text
         + _failure_summary(codes)
-        + f"  wrote {paths[0]} and {paths[1]}"
+        + f"  wrote {paths[0]} and {paths[2]}"
     )
     return 1 if failed.all() else 0
 

@@ -30,6 +30,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from ._checkpoint import Checkpoint
 from ._experiment import Experiment
 from ._fit_problem import (
     check_predictions,
@@ -63,6 +64,9 @@ def fit(
     chunk_size: int | None | str = "auto",
     subsample: int | None | str = "auto",
     jacobian: str = "auto",
+    checkpoint=None,
+    resume: bool = False,
+    callback=None,
 ) -> FitResult:
     """Fit the free parameters of ``experiment`` to the measurements in ``data``.
 
@@ -115,6 +119,21 @@ def fit(
       Either way the residuals are the model's, so the optimum is the same
       (the Jacobian's error moves it by about that fraction of a standard
       error, and the standard errors by that fraction).
+    - `checkpoint`: a path: the last accepted iterate (the parameters, the
+      iteration, the cost) is saved there as JSON, replaced atomically at
+      each one, so that an interrupted fit can restart from it.  An
+      existing file is never replaced unasked (``FileExistsError``).
+    - `resume`: with `checkpoint`: start from the parameters that file
+      holds (from `start` if there is none yet), and go on saving there.
+      The restart converges to the same estimate, within the tolerances
+      above (its iterations, from another start, are not the same ones);
+      ``steps`` counts its own.  Refused (``ValueError``) if the file was
+      saved by a fit of other free parameters, quantities or data.
+    - `callback`: called as ``callback(iteration, parameters, cost)`` at each
+      accepted iterate (after it is saved): ``parameters`` a dict of floats,
+      ``cost`` half the sum of the squared weighted residuals (of the warm
+      start's rows while it runs).  An exception it raises stops the fit (a
+      ``KeyboardInterrupt`` too); the checkpoint keeps the iterate.
 
     **Returns:** a `FitResult`.
     """
@@ -133,9 +152,15 @@ def fit(
     if jacobian not in _JACOBIANS:
         raise ValueError(f"`jacobian` must be one of {_JACOBIANS}, got {jacobian!r}")
     auto_chunks = isinstance(chunk_size, str) and chunk_size == "auto"
+    if resume and checkpoint is None:
+        raise ValueError("`resume=True` needs `checkpoint`, the file to restart from")
+    saver = Checkpoint(checkpoint, resume, callback)
+    # a restart: the saved iterate is the start
+    start = {**(start or {}), **saver.load(free)}
     data, problem, u0, x0, absolute = prepare(
         data, experiment, free, start, bounds, outputs, chunk_size
     )
+    saver.check(problem)
     free = problem.names
     measurements = int(problem.mask.sum())
     if measurements < len(free):
@@ -166,13 +191,14 @@ def fit(
             check_predictions(forward, u0, data, "at the start values")
             with derivatives_named(problem.experiment.settings):
                 u, steps, converged = minimise(
-                    problem, u0, solver, max_steps, rtol, atol, learning_rate, bar
-                )
+                    problem, u0, solver, max_steps, rtol, atol, learning_rate, bar,
+                    on_accept=saver.on_accept(solver, data.n),
+                )  # fmt: skip
             final = warm_info = None
         else:
             u, steps, converged, final, warm_info, forward = _fit_least_squares(
                 forward, u0, data, solver, max_steps, rtol, atol, bar, auto_chunks,
-                subsample, jacobian, absolute,
+                subsample, jacobian, absolute, saver,
             )  # fmt: skip
     if bar:
         bar.close()
@@ -261,7 +287,7 @@ def _check_subsample(subsample) -> None:
 
 def _fit_least_squares(
     problem, u0, data, solver, max_steps, rtol, atol, bar, auto_chunks, subsample,
-    jacobian, absolute,
+    jacobian, absolute, saver,
 ):  # fmt: skip
     """`fit` with Gauss-Newton or Levenberg-Marquardt (`diffimpact._inference._lsq`):
     the rows checked at the start in blocks (one per core), sorted by their
@@ -317,6 +343,7 @@ def _fit_least_squares(
                         warm, u, solver, max_steps, max(rtol, _WARM_TOL),
                         max(atol, _WARM_TOL), bar, update_jacobian=math.inf,
                         within=_WITHIN, absolute=absolute,
+                        on_accept=saver.on_accept(solver, k),
                     )  # fmt: skip
                 finally:
                     warm.close()
@@ -335,12 +362,13 @@ def _fit_least_squares(
                     blocks, u, "gauss-newton", max(max_steps - done, 1), rtol,
                     atol, bar, first=done, stop_if_rising=True,
                     update_jacobian=_REACH, within=_WITHIN, absolute=absolute,
+                    on_accept=saver.on_accept("gauss-newton", n),
                 )  # fmt: skip
             if not warm_converged or rose:
                 u, extra, converged, final2, _ = least_squares(
                     blocks, u, solver, max(max_steps - done - more, 1), rtol,
                     atol, bar, first=done + more, within=_WITHIN,
-                    absolute=absolute,
+                    absolute=absolute, on_accept=saver.on_accept(solver, n),
                 )  # fmt: skip
                 final = final2 if final2 is not None else final
                 more += extra

@@ -124,7 +124,7 @@ def _lands_within(errors, within) -> bool:
 
 def least_squares(blocks: RowBlocks, u0, solver_name, max_steps, rtol, atol, bar,
                   first=0, stop_if_rising=False, update_jacobian=None,
-                  within=None, absolute=False):  # fmt: skip
+                  within=None, absolute=False, on_accept=None):  # fmt: skip
     """optimistix's Gauss-Newton or Levenberg-Marquardt from ``u0``, one
     compiled step at a time (so that the command line can show progress).
     Returns ``(u, steps, converged, (r, J, d, blocked), rose)``: the last
@@ -150,7 +150,9 @@ def least_squares(blocks: RowBlocks, u0, solver_name, max_steps, rtol, atol, bar
     contraction of the last two such steps (`_standard_errors_left`,
     `_lands_within`; ``absolute``: the sigmas are the measurements' own, as
     `fit` reports), whatever the step's size in ``rtol``/``atol``; the
-    point is kept, not moved by the step."""
+    point is kept, not moved by the step.
+    ``on_accept``: None, or called as ``on_accept(u, step, cost)`` at every
+    accepted point (``step`` counted from ``first``), e.g. to save it."""
     if solver_name == "levenberg-marquardt":
         solver = optx.LevenbergMarquardt(rtol=rtol, atol=atol)
     else:
@@ -205,6 +207,8 @@ def least_squares(blocks: RowBlocks, u0, solver_name, max_steps, rtol, atol, bar
             blocked = np.union1d(blocked, failed)
         r, jac = final[:2]
         cost = 0.5 * float(np.sum(r**2))
+        if on_accept is not None and int(state.num_steps_since_acceptance) == 0:
+            on_accept(u, first + steps, cost)
         if bar:
             bar.update(first + steps, f"cost {cost:.4g}")
         # Stationary where the Gauss-Newton step from `u` is negligible: the

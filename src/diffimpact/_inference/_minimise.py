@@ -35,9 +35,12 @@ def _step(problem, opt, name, u, state):
     return optax.apply_updates(u, updates), state, value, grad
 
 
-def minimise(problem, u0, name, max_steps, rtol, atol, learning_rate, bar):
+def minimise(problem, u0, name, max_steps, rtol, atol, learning_rate, bar,
+             on_accept=None):  # fmt: skip
     """``(u, steps, converged)``: steps until the gradient is below ``atol``
-    or both the step and the change of the cost are within tolerances."""
+    or both the step and the change of the cost are within tolerances.
+    ``on_accept``: None, or called as ``on_accept(u, step, cost)`` at each
+    point whose cost a step has evaluated (the point before the step)."""
     opt = _optimiser(name, float(learning_rate))
     state = opt.init(u0)
     u, steps, converged, last = u0, 0, False, math.inf
@@ -45,6 +48,8 @@ def minimise(problem, u0, name, max_steps, rtol, atol, learning_rate, bar):
         u_new, state, value, grad = _step(problem, opt, name, u, state)
         steps += 1
         value = float(value)
+        if on_accept is not None:
+            on_accept(u, steps - 1, value)
         if bar:
             bar.update(steps, f"cost {value:.4g}")
         small_step = float(jnp.max(jnp.abs(u_new - u))) < rtol + atol

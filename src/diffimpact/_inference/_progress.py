@@ -19,9 +19,10 @@ class Progress:
     shows)."""
 
     def __init__(self, total, label="", width=30, *, rate=False, every=0.0,
-                 stream=None):  # fmt: skip
+                 stream=None, start=0):  # fmt: skip
         self.total, self.label, self.width = total, label, width
         self.rate, self.every = rate, every
+        self.start = start  # rows done before (a resumed sweep): not in the rate
         self.stream = sys.stderr if stream is None else stream
         self.t0 = time.perf_counter()
         self.last = -math.inf
@@ -56,7 +57,7 @@ class Progress:
         self.last = now
         dt = now - self.t0
         if self.rate:
-            speed = done / dt if dt > 0 else 0.0
+            speed = (done - self.start) / dt if dt > 0 else 0.0
             eta = (self.total - done) / speed if speed > 0 else math.inf
             tail = "done" if final else (
                 f"ETA {eta:.0f} s" if math.isfinite(eta) else "ETA ?")  # fmt: skip

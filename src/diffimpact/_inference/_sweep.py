@@ -45,6 +45,7 @@ from .._solve._settings import SolverSettings
 from .._solve._simulate import simulate
 from ..scenes import NormalImpact
 from ._progress import Progress
+from ._sweep_file import RowFile, inputs_digest
 
 # Rows per device in a chunk by default.  On CPU a small chunk keeps the
 # quadrature's per-row temporaries (32 x 16 Gauss nodes, ~25 kB a row) in
@@ -143,6 +144,9 @@ def sweep(
     chunk_size: int | None = None,
     devices: Sequence[jax.Device] | None = None,
     progress: bool = False,
+    out=None,
+    resume: bool = False,
+    on_chunk: Callable[[int, int], Any] | None = None,
 ):
     """Evaluate ``fn`` on every row of ``inputs``, in vmapped, sharded chunks.
 
@@ -166,9 +170,35 @@ def sweep(
       every process under ``jax.distributed``).  Each gets
       ``chunk_size / len(devices)`` consecutive rows of every chunk.
     - `progress`: draw a text progress bar on stderr (process 0 only).
+    - `out`: a path: also write the rows to this CSV file as each chunk
+      finishes (**The file** below), so that an interrupted sweep
+      loses nothing.  An existing file is never replaced: ``FileExistsError``.
+    - `resume`: with `out`: continue the sweep that file holds (or start it,
+      if there is none).  Its rows are kept, not computed again, and the
+      finished file is the same, bit for bit, as an uninterrupted run's.  Its
+      settings must be this call's: ``ValueError`` naming what differs.
+    - `on_chunk`: called as ``on_chunk(rows_done, rows_total)`` after each
+      chunk (written, with `out`); an exception it raises stops the sweep
+      (a ``KeyboardInterrupt`` too), and what is written stays.
 
     **Returns:** the output pytree of ``fn`` with every leaf stacked to a numpy
-    array of leading length ``N`` (row ``i`` is ``fn`` of row ``i``).
+    array of leading length ``N`` (row ``i`` is ``fn`` of row ``i``); with
+    `resume`, the rows of the file included (read back exactly).
+
+    **The file** (`out`): a header line, then one line per row, in row
+    order: the columns of ``inputs``, then those of the outputs, named by
+    their keys (``a.b`` for nested ones, ``name[i]`` for the entries of a
+    leaf with more than one value a row; an output named like an input is
+    ``output.name``), floats with the digits that read back to the same
+    bits (Python's ``repr``), integers and booleans as integers.  Beside it,
+    ``<out>.json`` holds the settings a resumed sweep must share: the rows,
+    the chunk size, the devices, the columns, the SHA-256 of the inputs, the
+    function's name (not what it closes over: the caller keeps that the
+    same) and the versions of diffimpact and JAX.  Lines are written whole,
+    one write a chunk, and synced to the disk at most every second; a
+    resumed sweep drops a partial last line and an incomplete last chunk and
+    goes on from there.  Under ``jax.distributed`` process 0 writes the
+    file, and every process must see it to resume.
 
     **Several processes** (``jax.distributed.initialize()`` first, on every
     machine): every process calls ``sweep`` with the same ``inputs`` (a
@@ -204,14 +234,45 @@ def sweep(
     NaN outputs instead).
     """
     if is_dataframe(inputs):
-        out = sweep(
+        result = sweep(
             fn,
             frame_columns(inputs),
             chunk_size=chunk_size,
             devices=devices,
             progress=progress,
+            out=out,
+            resume=resume,
+            on_chunk=on_chunk,
         )
-        return to_frame(out, inputs.index, "a sweep over a DataFrame")
+        return to_frame(result, inputs.index, "a sweep over a DataFrame")
+    if resume and out is None:
+        raise ValueError("`resume=True` needs `out`, the file of the sweep to go on")
+    engine = plan(fn, inputs, chunk_size=chunk_size, devices=devices)
+    if out is None:
+        return run_sweep(engine, progress=progress, on_chunk=on_chunk)
+    table = _Table(engine)
+    rows = RowFile(
+        out,
+        table.header,
+        table.settings(),
+        engine.n,
+        engine.chunk,
+        "resume" if resume else "new",
+        exists_hint=": pass resume=True to go on with its sweep, or remove it",
+    )
+    return run_sweep(
+        engine,
+        progress=progress,
+        on_chunk=on_chunk,
+        rows=rows,
+        format_rows=table.format_rows,
+        parse_rows=table.parse_rows,
+    )
+
+
+def plan(fn, inputs, *, chunk_size=None, devices=None) -> _Chunks:
+    """The chunks of `sweep` (its arguments checked): ``inputs`` on the host,
+    split into chunks of equal shape over ``devices``."""
     n, leaves, treedef = _rows(inputs)
     devices = list(jax.devices() if devices is None else devices)
     if not devices:
@@ -224,33 +285,60 @@ def sweep(
     # device's share equal (NamedSharding needs divisibility).
     chunk = min(chunk_size, n)
     chunk = -(-chunk // n_dev) * n_dev
-    n_chunks = -(-n // chunk)
-
-    mesh = Mesh(np.asarray(devices), (_AXIS,))
-    rows = NamedSharding(mesh, PartitionSpec(_AXIS))
-    # Which rows of a chunk each of this process's devices holds (under
-    # jax.distributed, only the local devices are listed).
-    local = rows.addressable_devices_indices_map((chunk,))
-    # Every device runs the same single-device program `vmap(fn)` on its own
-    # rows, dispatched asynchronously (so all devices work at once), and the
-    # pieces are assembled into one array sharded by `rows`.  Rows are
-    # independent, so nothing needs to communicate, and each device leaves
-    # its loops (Newton, adaptive steps) when its own rows converge.  (An SPMD
-    # program -- jit with in_shardings, or shard_map -- is compiled through
-    # XLA's partitioning pipeline, which rewrites some arithmetic: its results
-    # differed from the unsharded ones by a few ulps, up to 6e-15.)
-    batched = _batched(fn)
     host = [np.asarray(leaf) for leaf in leaves]
+    return _Chunks(fn, host, treedef, n, chunk, devices)
 
-    def run_chunk(k: int):
+
+class _Chunks:
+    """The chunks of a sweep, computed on the devices and copied back."""
+
+    def __init__(self, fn, host, treedef, n, chunk, devices):
+        self.fn, self.host, self.treedef = fn, host, treedef
+        self.n, self.chunk, self.devices = n, chunk, devices
+        self.n_chunks = -(-n // chunk)
+        mesh = Mesh(np.asarray(devices), (_AXIS,))
+        self.sharding = NamedSharding(mesh, PartitionSpec(_AXIS))
+        # Which rows of a chunk each of this process's devices holds (under
+        # jax.distributed, only the local devices are listed).
+        self.local = self.sharding.addressable_devices_indices_map((chunk,))
+        # Every device runs the same single-device program `vmap(fn)` on its
+        # own rows, dispatched asynchronously (so all devices work at once),
+        # and the pieces are assembled into one array sharded by `rows`.
+        # Rows are independent, so nothing needs to communicate, and each
+        # device leaves its loops (Newton, adaptive steps) when its own rows
+        # converge.  (An SPMD program -- jit with in_shardings, or shard_map
+        # -- is compiled through XLA's partitioning pipeline, which rewrites
+        # some arithmetic: its results differed from the unsharded ones by a
+        # few ulps, up to 6e-15.)
+        self.batched = _batched(fn)
+        self._structure = None
+
+    def structure(self):
+        """The outputs of one chunk, as ``jax.ShapeDtypeStruct`` (traced,
+        not run)."""
+        if self._structure is not None:
+            return self._structure
+        one = [
+            jax.ShapeDtypeStruct(
+                (self.chunk // len(self.devices),) + x.shape[1:], x.dtype
+            )  # fmt: skip
+            for x in self.host
+        ]
+        self._structure = jax.eval_shape(
+            self.batched, jax.tree_util.tree_unflatten(self.treedef, one)
+        )
+        return self._structure
+
+    def _run(self, k: int):
+        chunk, rows = self.chunk, self.sharding
         # Rows past the end repeat the last row: a valid input, so runtime
         # checks inside `fn` (e.g. velocity > 0) are not tripped by padding.
-        idx = np.minimum(np.arange(k * chunk, (k + 1) * chunk), n - 1)
-        blocks = [leaf[idx] for leaf in host]
+        idx = np.minimum(np.arange(k * chunk, (k + 1) * chunk), self.n - 1)
+        blocks = [leaf[idx] for leaf in self.host]
         pieces = []
-        for device, index in local.items():
+        for device, index in self.local.items():
             x = [jax.device_put(b[index], device) for b in blocks]
-            pieces.append(batched(jax.tree_util.tree_unflatten(treedef, x)))
+            pieces.append(self.batched(jax.tree_util.tree_unflatten(self.treedef, x)))
         flat = [jax.tree_util.tree_leaves(p) for p in pieces]
         tdef = jax.tree_util.tree_structure(pieces[0])
         out = [
@@ -261,48 +349,213 @@ def sweep(
         ]
         return jax.tree_util.tree_unflatten(tdef, out)
 
-    out_leaves, out_def = None, None
+    def __call__(self, first: int = 0):
+        """``(start, stop, outputs)`` for each chunk from row ``first`` (a
+        chunk boundary), the outputs as host numpy arrays of ``stop - start``
+        rows."""
+        # JAX dispatches asynchronously: chunk k+1 is queued before chunk k
+        # is copied back, so the devices are not idle during the transfer.
+        pending = None
+        start = self.n_chunks if first >= self.n else first // self.chunk
+        for k in range(start, self.n_chunks):
+            out = self._checked(self._run, k)
+            if pending is not None:
+                yield self._checked(self._collect, *pending)
+            pending = (k, out)
+        if pending is not None:
+            yield self._checked(self._collect, *pending)
+
+    def _checked(self, call, k: int, *args):
+        """``call(k, *args)``; a traced input check that fails inside `fn`
+        (under jit: JAX's runtime error) is raised as InvalidInputError naming
+        the sweep's row (exact on one device, whose program holds the whole
+        chunk)."""
+        try:
+            return call(k, *args)
+        except (jax.errors.JaxRuntimeError, ValueError) as err:
+            one = len(self.devices) == 1
+            raise_as_invalid(err, k * self.chunk if one else None, self.n)
+            raise
+
+    def _collect(self, k, out):
+        start = k * self.chunk
+        stop = min(start + self.chunk, self.n)
+        host = jax.tree.map(lambda x: x[: stop - start], _to_host(out))
+        return start, stop, host
+
+
+def run_sweep(engine: _Chunks, *, progress=False, on_chunk=None, rows=None,
+              format_rows=None, parse_rows=None):  # fmt: skip
+    """The sweep's loop: every chunk of ``engine`` into one output pytree of
+    numpy arrays; with ``rows`` (a `RowFile`), each chunk's lines
+    (``format_rows(start, stop, outputs)``) appended to it, and the rows it
+    held already read back (``parse_rows(lines, structure)``) instead of
+    computed."""
+    n = engine.n
+    writer = rows is not None and jax.process_index() == 0
+    out_leaves = out_def = None
+    first = 0
+    if rows is not None:
+        struct = engine.structure()
+        out_def = jax.tree_util.tree_structure(struct)
+        out_leaves = [
+            np.empty((n,) + x.shape[1:], x.dtype)
+            for x in jax.tree_util.tree_leaves(struct)
+        ]
+        if writer:
+            kept = rows.open()
+        else:  # every process starts where process 0 does (a shared file)
+            kept = rows.read_only()
+        first = rows.kept
+        if first:
+            done = jax.tree_util.tree_leaves(parse_rows(kept, struct))
+            for dst, src in zip(out_leaves, done, strict=True):
+                dst[:first] = src
     bar = (
-        Progress(n, rate=True, every=0.2)
+        Progress(n, rate=True, every=0.2, start=first)
         if progress and jax.process_index() == 0
         else None
     )
     if bar is not None:
-        bar.update(0, final=False)  # shown during the first compilation
-
-    def collect(k: int, out):
-        nonlocal out_leaves, out_def
-        flat, tdef = jax.tree_util.tree_flatten(_to_host(out))
-        if out_leaves is None:
-            out_def = tdef
-            out_leaves = [np.empty((n,) + x.shape[1:], x.dtype) for x in flat]
-        start = k * chunk
-        stop = min(start + chunk, n)
-        for dst, src in zip(out_leaves, flat, strict=True):
-            dst[start:stop] = src[: stop - start]
-        if bar is not None:
-            bar.update(stop, final=stop == n)
-
-    # JAX dispatches asynchronously: chunk k+1 is queued before chunk k is
-    # copied back, so the devices are not idle during the host transfer.
-    # A traced input check that fails inside `fn` (under jit: JAX's runtime
-    # error) is raised as InvalidInputError naming the sweep's row (exact on
-    # one device, whose program holds the whole chunk).
-    def checked(call, k: int, *args):
-        try:
-            return call(k, *args)
-        except (jax.errors.JaxRuntimeError, ValueError) as err:
-            raise_as_invalid(err, k * chunk if n_dev == 1 else None, n)
-            raise
-
-    pending = None
-    for k in range(n_chunks):
-        out = checked(lambda k: run_chunk(k), k)
-        if pending is not None:
-            checked(collect, *pending)
-        pending = (k, out)
-    checked(collect, *pending)
+        bar.update(first, final=first == n)  # shown during the first compilation
+    try:
+        for start, stop, out in engine(first):
+            flat, tdef = jax.tree_util.tree_flatten(out)
+            if out_leaves is None:
+                out_def = tdef
+                out_leaves = [np.empty((n,) + x.shape[1:], x.dtype) for x in flat]
+            for dst, src in zip(out_leaves, flat, strict=True):
+                dst[start:stop] = src
+            if writer:
+                rows.append(format_rows(start, stop, out), stop - start)
+            if bar is not None:
+                bar.update(stop, final=stop == n)
+            if on_chunk is not None:
+                on_chunk(stop, n)
+    except BaseException:
+        if writer:
+            rows.abandon()
+        raise
+    if writer:
+        rows.close()
     return jax.tree_util.tree_unflatten(out_def, out_leaves)
+
+
+def _key_name(path) -> str:
+    """``a.b.0`` for the key path of a leaf (dict keys, indices, fields)."""
+    parts = []
+    for k in path:
+        for attr in ("key", "idx", "name"):
+            if hasattr(k, attr):
+                parts.append(str(getattr(k, attr)))
+                break
+        else:
+            parts.append(str(k))
+    return ".".join(parts)
+
+
+def _columns(name: str, shape) -> list[str]:
+    """The CSV columns of a leaf whose rows have ``shape``."""
+    if not shape:
+        return [name]
+    return [f"{name}[{','.join(map(str, i))}]" for i in np.ndindex(*shape)]
+
+
+def _cell_format(dtype, where: str) -> str:
+    """The ``%`` format of a column that reads back to the same bits: the
+    shortest decimal of a float that does (Python's ``repr``)."""
+    dtype = np.dtype(dtype)
+    if dtype.kind in "biu":
+        return "%d"
+    if dtype.kind == "f":
+        return "%r"
+    raise ValueError(
+        f"`{where}` has dtype {dtype}: a sweep file holds real numbers, integers "
+        "and booleans only"
+    )
+
+
+def _function_name(fn) -> str:
+    while isinstance(fn, functools.partial):
+        fn = fn.func
+    name = getattr(fn, "__qualname__", type(fn).__qualname__)
+    return f"{getattr(fn, '__module__', None) or ''}.{name}".lstrip(".")
+
+
+class _Table:
+    """`sweep`'s file: the columns of the inputs and outputs, each written
+    with the digits that read back to its bits."""
+
+    def __init__(self, engine: _Chunks):
+        self.engine = engine
+        tree = jax.tree_util.tree_unflatten(engine.treedef, engine.host)
+        flat, _ = jax.tree_util.tree_flatten_with_path(tree)
+        inputs = [_key_name(p) or "input" for p, _ in flat]
+        self.in_names = inputs
+        struct = engine.structure()
+        out_flat, self.out_def = jax.tree_util.tree_flatten_with_path(struct)
+        names, formats, widths = [], [], []
+        for name, leaf in zip(inputs, engine.host, strict=True):
+            cols = _columns(name, leaf.shape[1:])
+            names += cols
+            formats += [_cell_format(leaf.dtype, name)] * len(cols)
+        self.shapes, self.dtypes = [], []
+        for path, leaf in out_flat:
+            name = _key_name(path) or "output"
+            if name in inputs:
+                name = "output." + name
+            cols = _columns(name, leaf.shape[1:])
+            names += cols
+            formats += [_cell_format(leaf.dtype, name)] * len(cols)
+            widths.append(len(cols))
+            self.shapes.append(leaf.shape[1:])
+            self.dtypes.append(leaf.dtype)
+        twice = sorted({c for c in names if names.count(c) > 1})
+        if twice:
+            raise ValueError(f"sweep columns named twice: {', '.join(twice)}")
+        self.names, self.widths = names, widths
+        self.n_inputs = len(names) - sum(widths)
+        self.header = ",".join(names)
+        self.row = ",".join(formats) + "\n"
+
+    def settings(self) -> dict:
+        e = self.engine
+        return {
+            "rows": e.n,
+            "chunk_size": e.chunk,
+            "devices": f"{len(e.devices)} {e.devices[0].platform}",
+            "processes": jax.process_count(),
+            "function": _function_name(e.fn),
+            "columns": self.names,
+            "inputs_sha256": inputs_digest(self.in_names, e.host),
+        }
+
+    def format_rows(self, start: int, stop: int, out) -> str:
+        cols = []
+        for leaf in self.engine.host:
+            block = leaf[start:stop].reshape(stop - start, -1)
+            cols += [c.tolist() for c in block.T]
+        for leaf in jax.tree_util.tree_leaves(out):
+            block = np.asarray(leaf).reshape(stop - start, -1)
+            cols += [c.tolist() for c in block.T]
+        row = self.row
+        return "".join(row % cells for cells in zip(*cols, strict=True))
+
+    def parse_rows(self, lines: bytes, struct):
+        cells = np.array(
+            [line.split(",") for line in lines.decode().splitlines()], dtype=str
+        )
+        if cells.ndim != 2 or cells.shape[1] != len(self.names):
+            raise ValueError("a row of the sweep's file has the wrong number of cells")
+        leaves, j = [], self.n_inputs
+        for width, shape, dtype in zip(self.widths, self.shapes, self.dtypes,
+                                       strict=True):  # fmt: skip
+            block = cells[:, j : j + width]
+            j += width
+            kind = np.dtype(dtype).kind
+            values = block.astype(np.float64 if kind == "f" else np.int64)
+            leaves.append(values.astype(dtype).reshape((len(cells), *shape)))
+        return jax.tree_util.tree_unflatten(self.out_def, leaves)
 
 
 def sweep_map(fn: Callable, inputs, *, batch_size: int | None = None):
