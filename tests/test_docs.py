@@ -133,10 +133,53 @@ def test_site_builds(tmp_path):
     for page in ["physics/contact", "cli", "api", "validation", "performance"]:
         assert (site / page / "index.html").is_file(), page
     for nb in NOTEBOOKS:
-        assert (site / "notebooks" / nb.stem / "index.html").is_file(), nb.name
+        page = site / "notebooks" / nb.stem / "index.html"
+        assert page.is_file(), nb.name
+        assert not unrendered_math(page.read_text()), nb.name
+    # what MathJax typesets: notebook Markdown cells, with $ delimiters
+    mathjax = (ROOT / "docs" / "javascripts" / "mathjax.js").read_text()
+    assert "jp-MarkdownOutput" in mathjax and '["$", "$"]' in mathjax
     # equation tags in docstrings link to the Physics pages
     api = (site / "api" / "index.html").read_text()
     assert 'href="../physics/contact/#JG-5"' in api
+
+
+_MARKDOWN_CELL = re.compile(
+    r'<div class="[^"]*jp-MarkdownOutput[^"]*"[^>]*>(.*?)</div>', re.S
+)
+# LaTeX left as text: a command, a \( or \[ delimiter, or a "^*" whose star
+# Markdown took for emphasis ("G^<em>")
+_LATEX_LEFT = re.compile(r"\\[A-Za-z()\[\]]|\^</?em>")
+
+
+def unrendered_math(html: str) -> list[str]:
+    """LaTeX in a built notebook's Markdown cells outside the ``$ $`` and
+    ``$$ $$`` formulas that MathJax typesets there (Markdown eats the
+    backslash of ``\\(`` and the star of ``G^*``): each piece found."""
+    found = []
+    for cell in _MARKDOWN_CELL.findall(html):
+        text = re.sub(r"\$\$.+?\$\$", "", cell, flags=re.S)
+        text = re.sub(r"\$[^$]+\$", "", text)
+        found += [
+            text[max(m.start() - 20, 0) : m.end() + 20]
+            for m in _LATEX_LEFT.finditer(text)
+        ]
+    return found
+
+
+def test_unrendered_math_is_found():
+    """The check of `test_site_builds` finds what a notebook once showed."""
+    bad = (
+        '<div class="jp-RenderedHTMLCommon jp-MarkdownOutput">the parameter '
+        "(\\chi = \\frac{1-\\nu}{2-\\nu}) (2 G^<em>/E^</em>)</div>"
+    )
+    good = (
+        '<div class="jp-RenderedHTMLCommon jp-MarkdownOutput">the parameter '
+        "$\\chi = \\frac{1-\\nu}{2-\\nu}$ ($2 G^*/E^*$)</div>"
+    )
+    found = " ".join(unrendered_math(bad))
+    assert "\\frac" in found and "^<em>" in found
+    assert unrendered_math(good) == []
 
 
 @pytest.mark.parametrize("nb", NOTEBOOKS, ids=lambda p: p.name)
