@@ -254,6 +254,38 @@ def test_compliant_flag_chooses_the_contact(tmp_path, capsys, monkeypatch):
     assert "mindlin-deresiewicz" in capsys.readouterr().err
 
 
+def test_method_flag_chooses_the_solver(tmp_path, capsys, monkeypatch):
+    """``--method`` reaches the experiment (``auto`` when not given), and a
+    method the contact cannot take is refused in one line naming why, before
+    anything is solved; another word is a usage error naming the choices."""
+    import diffimpact as di
+
+    seen = []
+    real_fit = di.fit
+
+    def fake_fit(data, experiment, *args, **kw):
+        seen.append(experiment.method)
+        raise ValueError("stopped before fitting")
+
+    monkeypatch.setattr(di, "fit", fake_fit)
+    ellipse = Path(__file__).parent.parent / "data" / "synthetic_ellipse_noise2pct.csv"
+    argv = ["fit", str(ellipse), "--free", "mu", "--out", str(tmp_path / "o")]
+    assert main(argv) == 2
+    assert main(argv + ["--method", "contact_space"]) == 2
+    assert seen == ["auto", "contact_space"]
+    capsys.readouterr()
+    monkeypatch.setattr(di, "fit", real_fit)
+    assert main(argv + ["--method", "contact_space", "--compliant"]) == 2
+    err = capsys.readouterr().err
+    assert "rigid Coulomb friction" in err and "Traceback" not in err
+    assert len(err.strip().splitlines()) <= 2, err
+    assert not (tmp_path / "o").exists()
+    with pytest.raises(SystemExit) as e:
+        main(argv + ["--method", "ode"])
+    assert e.value.code == 2
+    assert "contact_space" in capsys.readouterr().err
+
+
 def test_fit_with_partial_slip(tmp_path, capsys):
     """The ball-prism measurements fitted with the partial-slip contact (mu
     free): converges, and fits them better than the rigid contact (measured,

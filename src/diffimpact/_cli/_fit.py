@@ -39,6 +39,7 @@ _PROGRESS = "fit_progress.json"
 _HOLDOUT_FILES = ("holdout.csv", "holdout.png")
 _POSTERIOR_FILES = ("posterior.csv", "posterior.json", "corner.png", "predictive.png")
 _LAWS = {"jackson-green": "JacksonGreen", "hertz": "Hertz"}
+_METHODS = ("auto", "smooth", "events", "quadrature", "contact_space")
 
 
 # `--compliant [MODEL]`: the models (`Friction.compliant`'s, named here so
@@ -91,6 +92,16 @@ def register(sub) -> None:
         help="tangential compliance at the contact: 'mindlin' (the default "
         "with the bare flag; Mindlin's spring, no micro-slip) or "
         "'mindlin-deresiewicz' (partial slip); Friction(compliant=...)",
+    )
+    p.add_argument(
+        "--method",
+        choices=_METHODS,
+        default="auto",
+        help="simulate's method (default auto); contact_space: a rigid planar "
+        "body, bar or link with Hertz or Jackson-Green contact and rigid "
+        "Coulomb friction, solved without an ODE (the geometry frozen at first "
+        "contact: 1e-4 to 1e-2 from the planar ODE), for files of thousands of "
+        "rows",
     )
     p.add_argument(
         "--set",
@@ -316,6 +327,8 @@ def _fit_and_write(args, out) -> int:
             experiment.method,
             experiment.settings,
         )
+    if args.method != "auto":
+        experiment = dataclasses.replace(experiment, method=args.method)
     if args.solver_steps is not None:
         experiment = dataclasses.replace(
             experiment,
