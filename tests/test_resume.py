@@ -11,6 +11,7 @@ import time
 import jax.numpy as jnp
 import numpy as np
 import pytest
+from test_cli_fit import _data as _normal_data  # normal impacts, few digits
 
 from diffimpact._cli import main
 from diffimpact._inference import _sweep_file
@@ -274,18 +275,6 @@ def test_a_killed_command_line_sweep_resumes_bit_for_bit(tmp_path, capsys, n):
 # --------------------------------------------------------------------------
 # Fits
 # --------------------------------------------------------------------------
-
-
-def _normal_data(tmp_path):
-    """Normal impacts made by diffimpact (S_y = 400 MPa), written with few
-    digits (tests/test_cli_fit.py)."""
-    p = tmp_path / "normal.csv"
-    p.write_text(
-        "# test data\nscene,impact_velocity_m_s,cor_normal,contact_time_us\n"
-        "normal_impact,0.3,0.6381,78.10\nnormal_impact,1.0,0.4898,59.96\n"
-        "normal_impact,3.0,0.4374,50.94\n"
-    )
-    return p
 
 
 # far from the optimum, so that the fit takes several iterations

@@ -21,10 +21,11 @@ from __future__ import annotations
 
 import hashlib
 import json
-import os
 from pathlib import Path
 
 import numpy as np
+
+from .._io._files import write_json_atomic
 
 FORMAT = "diffimpact fit progress 1"
 
@@ -138,10 +139,4 @@ class Checkpoint:
             "quantities": list(self.problem.quantities),
             "data_sha256": self.digest,
         }
-        tmp = self.path.with_name(self.path.name + f".{os.getpid()}.tmp")
-        with open(tmp, "w") as fh:
-            json.dump(record, fh, indent=2)
-            fh.write("\n")
-            fh.flush()
-            os.fsync(fh.fileno())
-        os.replace(tmp, self.path)
+        write_json_atomic(self.path, record)

@@ -28,6 +28,8 @@ from pathlib import Path
 
 import numpy as np
 
+from .._io._files import write_json_atomic
+
 # The format of the settings file; a later format may not resume this one.
 FORMAT = "diffimpact sweep rows 1"
 # Least seconds between two syncs of the file to the disk (an fsync took 5 ms
@@ -149,14 +151,8 @@ class RowFile:
     def _write_settings(self) -> None:
         """The settings file, replaced atomically (written whole, synced,
         then renamed over the old one)."""
-        tmp = self.sidecar.with_name(self.sidecar.name + f".{os.getpid()}.tmp")
         record = {**self.settings, "versions": library_versions()}
-        with open(tmp, "w") as fh:
-            json.dump(record, fh, indent=2)
-            fh.write("\n")
-            fh.flush()
-            os.fsync(fh.fileno())
-        os.replace(tmp, self.sidecar)
+        write_json_atomic(self.sidecar, record)
 
     def read_only(self) -> bytes:
         """`open` for a process that does not write (under
