@@ -15,7 +15,8 @@ from test_cli_fit import _data as _normal_data  # normal impacts, few digits
 
 from diffimpact._cli import main
 from diffimpact._inference import _sweep_file
-from diffimpact._inference._sweep import sample, sweep
+from diffimpact._inference._sweep import sweep
+from diffimpact._inference._sweep_inputs import sample
 
 # Rows of the sweeps: 10^5 in the long tier (tests/extended.txt), a smaller
 # twin in the default one.

@@ -18,12 +18,11 @@ from diffimpact._cli import _sweep as _cli_sweep
 from diffimpact._inference._sweep import (
     NORMAL_OUTPUTS,
     check_normal_inputs,
-    grid,
     normal_impact,
-    sample,
     sweep,
     sweep_map,
 )
+from diffimpact._inference._sweep_inputs import grid, sample
 
 # 35 impacts from 1 cm/s to 10 m/s and 50 MPa to 2 GPa: elastic ones and
 # elasto-plastic ones up to d* ~ 3e4.
@@ -90,7 +89,8 @@ _SCRIPT = textwrap.dedent(
     if nproc > 1:
         jax.distributed.initialize(f"localhost:{port}", nproc, pid)
     import numpy as np
-    from diffimpact._inference._sweep import grid, normal_impact, sweep
+    from diffimpact._inference._sweep import normal_impact, sweep
+    from diffimpact._inference._sweep_inputs import grid
     g = grid(velocity=np.geomspace(0.01, 10, 7),
              yield_strength=np.geomspace(5e7, 2e9, 5))
     assert len(jax.devices()) == 2, jax.devices()

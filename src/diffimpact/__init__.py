@@ -43,11 +43,11 @@ from ._inference._priors import LogUniformPrior as LogUniformPrior
 from ._inference._priors import NormalPrior as NormalPrior
 from ._inference._priors import UniformPrior as UniformPrior
 from ._inference._priors import default_prior as default_prior
-from ._inference._sweep import grid as grid
 from ._inference._sweep import normal_impact_row as normal_impact_row
-from ._inference._sweep import sample as sample
 from ._inference._sweep import sweep as sweep
 from ._inference._sweep import sweep_map as sweep_map
+from ._inference._sweep_inputs import grid as grid
+from ._inference._sweep_inputs import sample as sample
 from ._inference._train import TrainResult as TrainResult
 from ._inference._train import evaluate as evaluate
 from ._inference._train import train as train

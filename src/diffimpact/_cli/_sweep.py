@@ -184,7 +184,7 @@ def _build_inputs(args):
     the grid's shape (None for a random sample)."""
     import numpy as np
 
-    from .._inference._sweep import grid, sample
+    from .._inference._sweep_inputs import grid, sample
 
     sampling = args.sample is not None
     if args.seed is not None and not sampling:

@@ -26,8 +26,6 @@ solved by the ODE-free quadrature.
 from __future__ import annotations
 
 import functools
-import math
-import zlib
 from collections.abc import Callable, Mapping, Sequence
 from typing import Any
 
@@ -45,7 +43,7 @@ from .._solve._settings import SolverSettings
 from .._solve._simulate import simulate
 from ..scenes import NormalImpact
 from ._progress import Progress
-from ._sweep_file import RowFile, inputs_digest
+from ._sweep_file import RowFile, Table
 
 # Rows per device in a chunk by default.  On CPU a small chunk keeps the
 # quadrature's per-row temporaries (32 x 16 Gauss nodes, ~25 kB a row) in
@@ -250,7 +248,7 @@ def sweep(
     engine = plan(fn, inputs, chunk_size=chunk_size, devices=devices)
     if out is None:
         return run_sweep(engine, progress=progress, on_chunk=on_chunk)
-    table = _Table(engine)
+    table = Table(engine)
     rows = RowFile(
         out,
         table.header,
@@ -441,123 +439,6 @@ def run_sweep(engine: _Chunks, *, progress=False, on_chunk=None, rows=None,
     return jax.tree_util.tree_unflatten(out_def, out_leaves)
 
 
-def _key_name(path) -> str:
-    """``a.b.0`` for the key path of a leaf (dict keys, indices, fields)."""
-    parts = []
-    for k in path:
-        for attr in ("key", "idx", "name"):
-            if hasattr(k, attr):
-                parts.append(str(getattr(k, attr)))
-                break
-        else:
-            parts.append(str(k))
-    return ".".join(parts)
-
-
-def _columns(name: str, shape) -> list[str]:
-    """The CSV columns of a leaf whose rows have ``shape``."""
-    if not shape:
-        return [name]
-    return [f"{name}[{','.join(map(str, i))}]" for i in np.ndindex(*shape)]
-
-
-def _cell_format(dtype, where: str) -> str:
-    """The ``%`` format of a column that reads back to the same bits: the
-    shortest decimal of a float that does (Python's ``repr``)."""
-    dtype = np.dtype(dtype)
-    if dtype.kind in "biu":
-        return "%d"
-    if dtype.kind == "f":
-        return "%r"
-    raise ValueError(
-        f"`{where}` has dtype {dtype}: a sweep file holds real numbers, integers "
-        "and booleans only"
-    )
-
-
-def _function_name(fn) -> str:
-    while isinstance(fn, functools.partial):
-        fn = fn.func
-    name = getattr(fn, "__qualname__", type(fn).__qualname__)
-    return f"{getattr(fn, '__module__', None) or ''}.{name}".lstrip(".")
-
-
-class _Table:
-    """`sweep`'s file: the columns of the inputs and outputs, each written
-    with the digits that read back to its bits."""
-
-    def __init__(self, engine: _Chunks):
-        self.engine = engine
-        tree = jax.tree_util.tree_unflatten(engine.treedef, engine.host)
-        flat, _ = jax.tree_util.tree_flatten_with_path(tree)
-        inputs = [_key_name(p) or "input" for p, _ in flat]
-        self.in_names = inputs
-        struct = engine.structure()
-        out_flat, self.out_def = jax.tree_util.tree_flatten_with_path(struct)
-        names, formats, widths = [], [], []
-        for name, leaf in zip(inputs, engine.host, strict=True):
-            cols = _columns(name, leaf.shape[1:])
-            names += cols
-            formats += [_cell_format(leaf.dtype, name)] * len(cols)
-        self.shapes, self.dtypes = [], []
-        for path, leaf in out_flat:
-            name = _key_name(path) or "output"
-            if name in inputs:
-                name = "output." + name
-            cols = _columns(name, leaf.shape[1:])
-            names += cols
-            formats += [_cell_format(leaf.dtype, name)] * len(cols)
-            widths.append(len(cols))
-            self.shapes.append(leaf.shape[1:])
-            self.dtypes.append(leaf.dtype)
-        twice = sorted({c for c in names if names.count(c) > 1})
-        if twice:
-            raise ValueError(f"sweep columns named twice: {', '.join(twice)}")
-        self.names, self.widths = names, widths
-        self.n_inputs = len(names) - sum(widths)
-        self.header = ",".join(names)
-        self.row = ",".join(formats) + "\n"
-
-    def settings(self) -> dict:
-        e = self.engine
-        return {
-            "rows": e.n,
-            "chunk_size": e.chunk,
-            "devices": f"{len(e.devices)} {e.devices[0].platform}",
-            "processes": jax.process_count(),
-            "function": _function_name(e.fn),
-            "columns": self.names,
-            "inputs_sha256": inputs_digest(self.in_names, e.host),
-        }
-
-    def format_rows(self, start: int, stop: int, out) -> str:
-        cols = []
-        for leaf in self.engine.host:
-            block = leaf[start:stop].reshape(stop - start, -1)
-            cols += [c.tolist() for c in block.T]
-        for leaf in jax.tree_util.tree_leaves(out):
-            block = np.asarray(leaf).reshape(stop - start, -1)
-            cols += [c.tolist() for c in block.T]
-        row = self.row
-        return "".join(row % cells for cells in zip(*cols, strict=True))
-
-    def parse_rows(self, lines: bytes, struct):
-        cells = np.array(
-            [line.split(",") for line in lines.decode().splitlines()], dtype=str
-        )
-        if cells.ndim != 2 or cells.shape[1] != len(self.names):
-            raise ValueError("a row of the sweep's file has the wrong number of cells")
-        leaves, j = [], self.n_inputs
-        for width, shape, dtype in zip(self.widths, self.shapes, self.dtypes,
-                                       strict=True):  # fmt: skip
-            block = cells[:, j : j + width]
-            j += width
-            kind = np.dtype(dtype).kind
-            values = block.astype(np.float64 if kind == "f" else np.int64)
-            leaves.append(values.astype(dtype).reshape((len(cells), *shape)))
-        return jax.tree_util.tree_unflatten(self.out_def, leaves)
-
-
 def sweep_map(fn: Callable, inputs, *, batch_size: int | None = None):
     """Differentiable sweep: ``fn`` on every row of ``inputs``, all in JAX.
 
@@ -588,82 +469,6 @@ def sweep_map(fn: Callable, inputs, *, batch_size: int | None = None):
         return jax.vmap(fn)(inputs)
     batch_size = integer("batch_size", batch_size)
     return jax.lax.map(fn, inputs, batch_size=min(batch_size, n))
-
-
-# --------------------------------------------------------------------------
-# Building inputs
-# --------------------------------------------------------------------------
-
-
-def grid(**axes) -> dict[str, np.ndarray]:
-    """Cartesian product of 1-D arrays, as flat columns.
-
-    ``grid(velocity=[1, 2], yield_strength=[1e8, 2e8, 3e8])`` gives a dict of
-    two arrays of 6 rows.  Rows are in C order: the *last* named axis varies
-    fastest, so ``column.reshape(len(a0), len(a1), ...)`` recovers the grid
-    (axis ``i`` along dimension ``i``).
-
-    **Raises:** ``ValueError`` naming the axis if it is not 1-D or empty, or if
-    no axis is given.
-    """
-    if not axes:
-        raise ValueError("`grid` needs at least one axis, e.g. velocity=[1.0, 2.0]")
-    arrays = {}
-    for name, values in axes.items():
-        a = np.asarray(values)
-        if a.ndim != 1:
-            raise ValueError(f"`{name}` must be a 1-D array of values, got {a.shape}")
-        if a.size == 0:
-            raise ValueError(f"`{name}` is empty: give at least one value")
-        arrays[name] = a
-    mesh = np.meshgrid(*arrays.values(), indexing="ij")
-    return {name: m.ravel() for name, m in zip(arrays, mesh, strict=True)}
-
-
-def sample(key, n: int, **ranges) -> dict[str, np.ndarray]:
-    """``n`` random rows, each column drawn independently.
-
-    **Arguments:**
-
-    - `key`: a ``jax.random`` key, or an integer seed.
-    - `n`: number of rows (> 0).
-    - `ranges`: ``name=(low, high)`` draws uniformly in ``[low, high)``;
-      ``name=(low, high, "log")`` draws *log-uniformly* (``log x`` uniform, the
-      natural choice for quantities spanning decades such as speeds and yield
-      strengths; needs ``0 < low``).
-
-    Each column's stream is keyed by its name (``fold_in`` of a CRC of it), so
-    adding or reordering columns does not change the others.
-
-    **Returns:** a dict of float arrays (float64 under diffimpact's default),
-    as numpy.
-    """
-    n = integer("n", n)
-    if not ranges:
-        raise ValueError("`sample` needs at least one range, e.g. velocity=(0.1, 10)")
-    if isinstance(key, int | np.integer):
-        key = jax.random.key(int(key))
-    out = {}
-    for name, spec in ranges.items():
-        spec = tuple(spec)
-        log = len(spec) == 3 and spec[2] == "log"
-        if len(spec) not in (2, 3) or (
-            len(spec) == 3 and spec[2] not in ("log", "lin")
-        ):
-            raise ValueError(
-                f"`{name}` must be (low, high) or (low, high, 'log'), got {spec!r}"
-            )
-        lo, hi = float(spec[0]), float(spec[1])
-        if not (math.isfinite(lo) and math.isfinite(hi) and lo <= hi):
-            raise ValueError(f"`{name}` needs finite low <= high, got ({lo}, {hi})")
-        if log and lo <= 0:
-            raise ValueError(f"`{name}`: a log-uniform range needs low > 0, got {lo}")
-        k = jax.random.fold_in(key, zlib.crc32(name.encode()) & 0x7FFFFFFF)
-        a, b = (math.log(lo), math.log(hi)) if log else (lo, hi)
-        u = jax.random.uniform(k, (n,), dtype=jnp.result_type(float))
-        x = a + (b - a) * u
-        out[name] = np.asarray(jnp.exp(x) if log else x)
-    return out
 
 
 # --------------------------------------------------------------------------

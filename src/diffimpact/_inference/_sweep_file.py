@@ -19,6 +19,7 @@ boundary.
 
 from __future__ import annotations
 
+import functools
 import hashlib
 import json
 import os
@@ -26,6 +27,7 @@ import time
 from importlib.metadata import PackageNotFoundError, version
 from pathlib import Path
 
+import jax
 import numpy as np
 
 from .._io._files import write_json_atomic
@@ -242,3 +244,121 @@ class RowFile:
                     p.unlink()
                 except FileNotFoundError:
                     pass
+
+
+def _key_name(path) -> str:
+    """``a.b.0`` for the key path of a leaf (dict keys, indices, fields)."""
+    parts = []
+    for k in path:
+        for attr in ("key", "idx", "name"):
+            if hasattr(k, attr):
+                parts.append(str(getattr(k, attr)))
+                break
+        else:
+            parts.append(str(k))
+    return ".".join(parts)
+
+
+def _columns(name: str, shape) -> list[str]:
+    """The CSV columns of a leaf whose rows have ``shape``."""
+    if not shape:
+        return [name]
+    return [f"{name}[{','.join(map(str, i))}]" for i in np.ndindex(*shape)]
+
+
+def _cell_format(dtype, where: str) -> str:
+    """The ``%`` format of a column that reads back to the same bits: the
+    shortest decimal of a float that does (Python's ``repr``)."""
+    dtype = np.dtype(dtype)
+    if dtype.kind in "biu":
+        return "%d"
+    if dtype.kind == "f":
+        return "%r"
+    raise ValueError(
+        f"`{where}` has dtype {dtype}: a sweep file holds real numbers, integers "
+        "and booleans only"
+    )
+
+
+def _function_name(fn) -> str:
+    while isinstance(fn, functools.partial):
+        fn = fn.func
+    name = getattr(fn, "__qualname__", type(fn).__qualname__)
+    return f"{getattr(fn, '__module__', None) or ''}.{name}".lstrip(".")
+
+
+class Table:
+    """`sweep`'s file: the columns of the inputs and outputs, each written
+    with the digits that read back to its bits (``engine``: the sweep's
+    chunks, `diffimpact._inference._sweep.plan`)."""
+
+    def __init__(self, engine):
+        self.engine = engine
+        tree = jax.tree_util.tree_unflatten(engine.treedef, engine.host)
+        flat, _ = jax.tree_util.tree_flatten_with_path(tree)
+        inputs = [_key_name(p) or "input" for p, _ in flat]
+        self.in_names = inputs
+        struct = engine.structure()
+        out_flat, self.out_def = jax.tree_util.tree_flatten_with_path(struct)
+        names, formats, widths = [], [], []
+        for name, leaf in zip(inputs, engine.host, strict=True):
+            cols = _columns(name, leaf.shape[1:])
+            names += cols
+            formats += [_cell_format(leaf.dtype, name)] * len(cols)
+        self.shapes, self.dtypes = [], []
+        for path, leaf in out_flat:
+            name = _key_name(path) or "output"
+            if name in inputs:
+                name = "output." + name
+            cols = _columns(name, leaf.shape[1:])
+            names += cols
+            formats += [_cell_format(leaf.dtype, name)] * len(cols)
+            widths.append(len(cols))
+            self.shapes.append(leaf.shape[1:])
+            self.dtypes.append(leaf.dtype)
+        twice = sorted({c for c in names if names.count(c) > 1})
+        if twice:
+            raise ValueError(f"sweep columns named twice: {', '.join(twice)}")
+        self.names, self.widths = names, widths
+        self.n_inputs = len(names) - sum(widths)
+        self.header = ",".join(names)
+        self.row = ",".join(formats) + "\n"
+
+    def settings(self) -> dict:
+        e = self.engine
+        return {
+            "rows": e.n,
+            "chunk_size": e.chunk,
+            "devices": f"{len(e.devices)} {e.devices[0].platform}",
+            "processes": jax.process_count(),
+            "function": _function_name(e.fn),
+            "columns": self.names,
+            "inputs_sha256": inputs_digest(self.in_names, e.host),
+        }
+
+    def format_rows(self, start: int, stop: int, out) -> str:
+        cols = []
+        for leaf in self.engine.host:
+            block = leaf[start:stop].reshape(stop - start, -1)
+            cols += [c.tolist() for c in block.T]
+        for leaf in jax.tree_util.tree_leaves(out):
+            block = np.asarray(leaf).reshape(stop - start, -1)
+            cols += [c.tolist() for c in block.T]
+        row = self.row
+        return "".join(row % cells for cells in zip(*cols, strict=True))
+
+    def parse_rows(self, lines: bytes, struct):
+        cells = np.array(
+            [line.split(",") for line in lines.decode().splitlines()], dtype=str
+        )
+        if cells.ndim != 2 or cells.shape[1] != len(self.names):
+            raise ValueError("a row of the sweep's file has the wrong number of cells")
+        leaves, j = [], self.n_inputs
+        for width, shape, dtype in zip(self.widths, self.shapes, self.dtypes,
+                                       strict=True):  # fmt: skip
+            block = cells[:, j : j + width]
+            j += width
+            kind = np.dtype(dtype).kind
+            values = block.astype(np.float64 if kind == "f" else np.int64)
+            leaves.append(values.astype(dtype).reshape((len(cells), *shape)))
+        return jax.tree_util.tree_unflatten(self.out_def, leaves)
