@@ -3,10 +3,11 @@
 Each command runs twice in a fresh process with a fresh persistent
 compilation cache (``DIFFIMPACT_CACHE_DIR``): the first run compiles and
 stores, the second loads what it can.  Prints a Markdown table (total wall
-time, and for ``fit`` the time until its first iteration is shown) and writes
+time, and for ``fit`` the time until its first progress line is shown: the
+first iteration, or for ``--posterior`` the sampler's bar) and writes
 ``benchmarks/cli_times.png``.
 
-Usage: ``python benchmarks/bench_cli.py`` (about 3 minutes on 2 cores).
+Usage: ``python benchmarks/bench_cli.py`` (about 6 minutes on 2 cores).
 """
 
 from __future__ import annotations
@@ -26,6 +27,7 @@ import matplotlib.pyplot as plt  # noqa: E402
 
 HERE = pathlib.Path(__file__).parent
 DATA = str(HERE.parent / "data" / "ball_prism.csv")
+INCLINE = str(HERE.parent / "data" / "synthetic_sphere_on_incline_noise1pct.csv")
 
 
 def quick_start() -> str:
@@ -69,6 +71,27 @@ def main():
         ),
         ("fit ball_prism (rigid)", [*fit, "--out", out], "step 1/"),
         ("fit ball_prism (compliant)", [*fit, "--compliant", "--out", out], "step 1/"),
+        (
+            "fit --holdout 0.25 (sphere on incline, 20 rows)",
+            [
+                "diffimpact",
+                "fit",
+                INCLINE,
+                "--free",
+                "yield_strength,mu",
+                "--holdout",
+                "0.25",
+                "--force",
+                "--out",
+                out,
+            ],
+            "step 1/",
+        ),  # fmt: skip
+        (
+            "fit --posterior ball_prism (rigid, 4 x 300 draws)",
+            [*fit, "--posterior", "--samples", "300", "--warmup", "300", "--out", out],
+            "NUTS",
+        ),  # fmt: skip
         ("README quick start (Python)", [sys.executable, "-c", quick_start()], None),
     ]
     rows = []
