@@ -54,7 +54,7 @@ from ._inference._train import train as train
 from ._io._data import DataError as DataError
 from ._io._data import ExperimentData as ExperimentData
 from ._io._data import load_experiments as load_experiments
-from ._io._data import write_experiments as write_experiments
+from ._io._write import write_experiments as write_experiments
 from ._laws._adams import AdamsImpact as AdamsImpact
 from ._laws._base import AbstractBoundLaw as AbstractBoundLaw
 from ._laws._base import AbstractNormalLaw as AbstractNormalLaw
