@@ -54,7 +54,8 @@ def worker(n: int, chunk: int, save: Path | None) -> dict:
     import jax
     import numpy as np
 
-    from diffimpact._inference._sweep import normal_impact, sweep
+    from diffimpact._inference._normal_rows import normal_impact
+    from diffimpact._inference._sweep import sweep
     from diffimpact._inference._sweep_inputs import sample
 
     inputs = sample(SEED, n, velocity=VELOCITY_RANGE, yield_strength=YIELD_RANGE)

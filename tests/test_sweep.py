@@ -15,13 +15,12 @@ import numpy as np
 import pytest
 
 from diffimpact._cli import _sweep as _cli_sweep
-from diffimpact._inference._sweep import (
+from diffimpact._inference._normal_rows import (
     NORMAL_OUTPUTS,
     check_normal_inputs,
     normal_impact,
-    sweep,
-    sweep_map,
 )
+from diffimpact._inference._sweep import sweep, sweep_map
 from diffimpact._inference._sweep_inputs import grid, sample
 
 # 35 impacts from 1 cm/s to 10 m/s and 50 MPa to 2 GPa: elastic ones and
@@ -89,7 +88,8 @@ _SCRIPT = textwrap.dedent(
     if nproc > 1:
         jax.distributed.initialize(f"localhost:{port}", nproc, pid)
     import numpy as np
-    from diffimpact._inference._sweep import normal_impact, sweep
+    from diffimpact._inference._normal_rows import normal_impact
+    from diffimpact._inference._sweep import sweep
     from diffimpact._inference._sweep_inputs import grid
     g = grid(velocity=np.geomspace(0.01, 10, 7),
              yield_strength=np.geomspace(5e7, 2e9, 5))

@@ -33,6 +33,7 @@ from ._inference._learning_curve import learning_curve as learning_curve
 from ._inference._learning_curve import load_model as load_model
 from ._inference._learning_curve import save_model as save_model
 from ._inference._network import VelocityNetwork as VelocityNetwork
+from ._inference._normal_rows import normal_impact_row as normal_impact_row
 from ._inference._posterior import posterior as posterior
 from ._inference._posterior_result import ConvergenceWarning as ConvergenceWarning
 from ._inference._posterior_result import PosteriorResult as PosteriorResult
@@ -43,7 +44,6 @@ from ._inference._priors import LogUniformPrior as LogUniformPrior
 from ._inference._priors import NormalPrior as NormalPrior
 from ._inference._priors import UniformPrior as UniformPrior
 from ._inference._priors import default_prior as default_prior
-from ._inference._sweep import normal_impact_row as normal_impact_row
 from ._inference._sweep import sweep as sweep
 from ._inference._sweep import sweep_map as sweep_map
 from ._inference._sweep_inputs import grid as grid

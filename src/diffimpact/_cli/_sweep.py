@@ -11,7 +11,7 @@ Each swept input is given as one of::
 
 Without ``--sample`` the sweep is the Cartesian product of all given axes (one
 CSV row per combination); with ``--sample N`` it is ``N`` random rows.  Inputs
-not given take the defaults of `diffimpact._inference._sweep.NORMAL_DEFAULTS` (a
+not given take the defaults of `diffimpact._inference._normal_rows.NORMAL_DEFAULTS` (a
 5 mm steel sphere on the same steel, 1 m/s).  Each impact is solved by
 ``method="quadrature"`` (exact to about 1e-11), in chunks over every device
 JAX sees.
@@ -411,13 +411,12 @@ def _sweep(args, out_dir, paths) -> int:
 
     import diffimpact as di
 
-    from .._inference._sweep import (
+    from .._inference._normal_rows import (
         NORMAL_DEFAULTS,
         check_normal_inputs,
         normal_impact,
-        plan,
-        run_sweep,
     )
+    from .._inference._sweep import plan, run_sweep
     from .._inference._sweep_file import RowFile, inputs_digest
 
     inputs, swept, log, shape = _build_inputs(args)

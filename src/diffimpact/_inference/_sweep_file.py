@@ -19,6 +19,7 @@ boundary.
 
 from __future__ import annotations
 
+import contextlib
 import functools
 import hashlib
 import json
@@ -98,9 +99,8 @@ def _sync_dir(folder: Path) -> None:
     except OSError:  # (not on every system)
         return
     try:
-        os.fsync(fd)
-    except OSError:
-        pass
+        with contextlib.suppress(OSError):  # (a folder cannot always be synced)
+            os.fsync(fd)
     finally:
         os.close(fd)
 
@@ -240,10 +240,7 @@ class RowFile:
         self.close()
         if self.made and self.written == 0:
             for p in (self.path, self.sidecar):
-                try:
-                    p.unlink()
-                except FileNotFoundError:
-                    pass
+                p.unlink(missing_ok=True)
 
 
 def _key_name(path) -> str:
