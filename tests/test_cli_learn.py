@@ -59,7 +59,7 @@ def test_learn_bad_arguments(tmp_path, capsys):
     assert main(base + ["--learn", "cor=spin"]) == 2
     assert "feature(s) ['spin'] are not offered" in capsys.readouterr().err
     assert main(base + ["--learn", "kor"]) == 2
-    assert "the parameter is 'cor' or 'mu'" in capsys.readouterr().err
+    assert "the parameter is 'cor', 'mu' or 'tangential_cor'" in capsys.readouterr().err
     assert main(base + ["--holdout", "1.5"]) == 2
     assert "--holdout must be a fraction" in capsys.readouterr().err
     assert not (tmp_path / "o").exists()  # nothing made before the checks

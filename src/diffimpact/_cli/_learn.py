@@ -24,6 +24,9 @@ from ._files import number, open_new, writable_folder
 from ._outputs import provenance
 
 _OUTPUT_FILES = ("learn.json", "errors.csv", "hybrid.eqx")
+# The rigid law's parameters (`diffimpact.RigidContact`, Coulomb's mu);
+# tangential_cor switches on its tangential restitution (Walton's rule).
+LEARNABLE = ("cor", "mu", "tangential_cor")
 # The contact-space description of the first contact: what a compliant
 # law's COR depends on besides the materials (how-to "When constant
 # parameters are not enough").
@@ -48,9 +51,10 @@ def register(sub) -> None:
         action="append",
         default=[],
         metavar="PARAM[=FEATURES]",
-        help="a parameter to learn (cor or mu), with comma-separated features "
+        help="a parameter to learn (cor, mu or tangential_cor), with "
+        "comma-separated features "
         f"(default: {', '.join(DEFAULT_FEATURES)}); repeat for several "
-        "(default: cor)",
+        "(default: cor and mu)",
     )
     p.add_argument(
         "--restitution",
@@ -88,10 +92,11 @@ def _parse_learn(items) -> dict:
     for item in items or ["cor", "mu"]:
         name, _, feats = item.partition("=")
         name = name.strip()
-        if name not in ("cor", "mu"):
+        if name not in LEARNABLE:
             raise ValueError(
-                f"--learn {item!r}: the parameter is 'cor' or 'mu' (the rigid "
-                "law's), e.g. --learn cor=normal_speed,slip_ratio"
+                f"--learn {item!r}: the parameter is 'cor', 'mu' or "
+                "'tangential_cor' (the rigid law's), e.g. --learn "
+                "cor=normal_speed,slip_ratio"
             )
         features = tuple(f.strip() for f in feats.split(",") if f.strip())
         if feats and not features:
@@ -140,7 +145,11 @@ def run(args) -> int:
     friction = declared.friction or di.Friction(0.2)
     experiment = di.Experiment(
         declared.scene,
-        di.RigidContact(0.6, args.restitution),
+        di.RigidContact(
+            0.6,
+            args.restitution,
+            tangential_cor=0.0 if "tangential_cor" in learn else None,
+        ),
         di.Friction(friction.mu),
     )
     constants = ["cor", "mu"]

@@ -41,6 +41,7 @@ LOOSE = 10.0
 _DOMAINS = {
     "poisson_ratio": (-1.0, 0.5),
     "cor": (0.0, 1.0),
+    "tangential_cor": (-1.0, 1.0),
     "dr_a": (0.0, 1.0),
     # a planar body's centre of mass, in its shape's frame: either sign
     "com_x": (-math.inf, math.inf),

@@ -15,10 +15,11 @@ restitution, which never gains energy, keeps every impact dissipative):
     ``p(x) = g(c + f(z(x)))``, ``z = (x - shift) / scale``,
 
 ``g`` the map of the parameter's domain (a logistic for a COR in (0, 1), a
-softplus for a friction coefficient, an exponential for a positive
-constant), ``c`` the constant the physics would fit, ``f`` a correction
-(a small MLP or a polynomial, zero at the start) and ``z`` the features
-standardised on the training rows.  Training penalises ``f`` on the
+tanh for a tangential COR in (-1, 1), a softplus for a friction
+coefficient, an exponential for a positive constant), ``c`` the constant
+the physics would fit, ``f`` a correction (a small MLP or a polynomial,
+zero at the start) and ``z`` the features standardised on the training
+rows.  Training penalises ``f`` on the
 training rows (`penalty`), so that with few rows the function stays near
 the constant: the physics is the prior, the data bend it.
 """
@@ -70,6 +71,7 @@ CONTACT_FEATURES = {
 
 DOMAINS = {
     "unit": "(0, 1)",
+    "symmetric": "(-1, 1)",
     "nonnegative": "[0, inf)",
     "positive": "(0, inf)",
 }
@@ -79,6 +81,7 @@ DOMAINS = {
 # domain= given.
 _DOMAIN_OF = {
     "cor": "unit",
+    "tangential_cor": "symmetric",
     "mu": "nonnegative",
     "mu_v": "nonnegative",
     "mu_s": "nonnegative",
@@ -92,6 +95,8 @@ _EDGE = 1e-6
 def _to_domain(domain: str, raw):
     if domain == "unit":
         return jax.nn.sigmoid(raw)
+    if domain == "symmetric":
+        return jnp.tanh(raw)
     if domain == "nonnegative":
         return jax.nn.softplus(raw)
     return jnp.exp(raw)
@@ -100,6 +105,8 @@ def _to_domain(domain: str, raw):
 def _from_domain(domain: str, value: float) -> float:
     if domain == "unit":
         return math.log(value / (1.0 - value))
+    if domain == "symmetric":
+        return math.atanh(value)
     if domain == "nonnegative":
         return value + math.log(-math.expm1(-value))  # softplus^-1
     return math.log(value)
@@ -111,6 +118,8 @@ def _within(domain: str, value):
     finite = jnp.isfinite(value)
     if domain == "unit":  # [0, 1]: a rigid law's COR may be exactly 0 or 1
         return finite & (value >= 0) & (value <= 1)
+    if domain == "symmetric":
+        return finite & (value >= -1) & (value <= 1)
     if domain == "nonnegative":
         return finite & (value >= 0)
     return finite & (value > 0)
@@ -119,6 +128,8 @@ def _within(domain: str, value):
 def _inside(domain: str, value: float) -> bool:
     if domain == "unit":
         return 0.0 < value < 1.0
+    if domain == "symmetric":
+        return -1.0 < value < 1.0
     if domain == "nonnegative":
         return value > 0.0  # a start exactly at 0 has no finite raw value
     return value > 0.0
@@ -321,6 +332,8 @@ class Learned(eqx.Module):
             )
         if domain == "unit" and start in (0.0, 1.0):
             start = min(max(start, _EDGE), 1.0 - _EDGE)
+        elif domain == "symmetric" and start in (-1.0, 1.0):
+            start = min(max(start, -1.0 + _EDGE), 1.0 - _EDGE)
         elif domain == "nonnegative" and start == 0.0:
             start = _EDGE
         if not (math.isfinite(start) and _inside(domain, start)):

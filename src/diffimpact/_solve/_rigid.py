@@ -25,7 +25,27 @@ end the restitution:
   ``e^2`` times minus its work in compression.
 
 They coincide without friction, and the energetic law is the one that never
-gains energy when the slip reverses or sticks (Stronge 2000).  Everything is
+gains energy when the slip reverses or sticks (Stronge 2000).
+
+A tangential restitution ``e_t`` (optional; R-4 below) then returns part of
+the slip, as the tangential compliance of real contacts does (Maw, Barber &
+Fawcett 1976): Walton's rule for spheres (Walton & Braun 1986; Foerster et
+al. 1994), ``v_final = -e_t v_0`` where Coulomb's cone allows, generalised
+to coupled bodies.  After Routh's process (impulse ``(p, P_t)``), an impulse
+``x`` is added along ``d = (b / a, 1)``, the direction that leaves the
+separation speed unchanged (``ds = a b / a - b = 0``) and changes the slip at
+the rate ``c~ = c - b^2 / a > 0``:
+
+    ``x = clip((-e_t v_0 - v_R) / c~, x_lo, x_hi)``              (R-4)
+
+where ``[x_lo, x_hi]`` keeps the impulse in Coulomb's cone
+(``|P_t + x| <= mu (p + b x / a)``) and the kinetic energy no higher than
+after Routh's process or before the impact, whichever is higher
+(``dT(x) = dT_R + (s_R b / a + v_R) x + c~ x^2 / 2``).  For a sphere
+(``b = 0``) this is Walton's rule exactly; the separation speed stays
+Routh's; the interval always holds ``x = 0``, so the law is the plain one
+where the cone or energy leave no room.  (The direction and the energy cap
+are ours: the literature states the rule for uncoupled contacts only.)  Everything is
 closed form, so `rigid_impact` is exact (to rounding), differentiable, and
 vmaps.  Gravity is neglected (an impulsive impact).
 """
@@ -44,6 +64,7 @@ from .._checks import (
     inputs_guarded,
     is_traced,
     nonnegative,
+    optional_float,
     require_scalars,
 )
 from .._result import RESULTS, finish, raise_if_failed, with_invalid
@@ -59,10 +80,18 @@ class RigidContact(AbstractValidated):
     `restitution` (static: ``"newton"``, ``"poisson"`` or ``"energetic"``).
     Friction is the experiment's `Friction(mu)`, Coulomb's coefficient only.
     Put in an `Experiment` in place of a normal law, it is the rigid
-    baseline fitted to the same file as a compliant model."""
+    baseline fitted to the same file as a compliant model.
+
+    `tangential_cor` (optional, in [-1, 1], fitted and learned by that name):
+    the tangential restitution ``e_t`` of the contact point's slip (R-4,
+    `rigid_impact`): after the impact the slip is ``-e_t`` times the slip
+    before where Coulomb's cone and the energy allow (Walton's rule; 1
+    reverses it, 0 stops it, -1 leaves it).  None (the default): no
+    tangential restitution."""
 
     cor: Array = eqx.field(converter=as_float)
     restitution: str = eqx.field(static=True, default="newton")
+    tangential_cor: Array | None = eqx.field(converter=optional_float, default=None)
 
     def _checks(self):
         if self.restitution not in RESTITUTION_LAWS:
@@ -72,7 +101,14 @@ class RigidContact(AbstractValidated):
             )
         cor = self.cor
         ok = jnp.isfinite(cor) & (cor >= 0) & (cor <= 1)
-        return [check(cor, ok, "`RigidContact.cor` must lie in [0, 1]")]
+        checks = [check(cor, ok, "`RigidContact.cor` must lie in [0, 1]")]
+        e_t = self.tangential_cor
+        if e_t is not None:
+            ok = jnp.isfinite(e_t) & (e_t >= -1) & (e_t <= 1)
+            checks.append(
+                check(e_t, ok, "`RigidContact.tangential_cor` must lie in [-1, 1]")
+            )
+        return checks
 
     def impact(self, scene, friction, *, throw: bool = True) -> dict:
         """`rigid_impact` of ``scene`` with this contact and ``friction``."""
@@ -84,7 +120,14 @@ class RigidContact(AbstractValidated):
                 "mu_v, mu_s or compliant"
             )
         mu = 0.0 if friction is None else friction.mu
-        return rigid_impact(scene, mu, self.cor, self.restitution, throw=throw)
+        return rigid_impact(
+            scene,
+            mu,
+            self.cor,
+            self.restitution,
+            tangential_cor=self.tangential_cor,
+            throw=throw,
+        )
 
 
 def _safe_div(num, den):
@@ -151,6 +194,7 @@ def rigid_impact(
     cor,
     restitution: str = "newton",
     *,
+    tangential_cor=None,
     throw: bool = True,
 ) -> dict:
     """Outcome of a rigid impact of a planar scene under Routh's method.
@@ -158,7 +202,9 @@ def rigid_impact(
     **Arguments:** `scene` (any `AbstractPlanarScene`, e.g.
     `scenes.PlanarBody`); `mu`: Coulomb friction coefficient (>= 0); `cor`:
     coefficient of restitution ``e`` in [0, 1]; `restitution`: ``"newton"``,
-    ``"poisson"`` or ``"energetic"`` (module docstring); `throw`: as in
+    ``"poisson"`` or ``"energetic"`` (module docstring); `tangential_cor`:
+    the tangential restitution ``e_t`` in [-1, 1] of (R-4), or None (none);
+    `throw`: as in
     `diffimpact.simulate` (a stuck contact whose ``J_n`` is parallel to
     ``J_t``, a pinned link wedged by friction, has no rigid solution:
     ``never_separates``, as the compliant model reports it).
@@ -187,6 +233,7 @@ def rigid_impact(
             "solve (diffimpact.simulate), or the rigid scene (e.g. FreeBar)"
         )
     mu, cor = as_float(mu), as_float(cor)
+    e_t = optional_float(tangential_cor)
     require_scalars(scene, "scene")
     limits = [
         nonnegative(mu, "mu"),
@@ -194,17 +241,72 @@ def rigid_impact(
             cor, jnp.isfinite(cor) & (cor >= 0) & (cor <= 1), "`cor` must lie in [0, 1]"
         ),
     ]
+    if e_t is not None:
+        ok = jnp.isfinite(e_t) & (e_t >= -1) & (e_t <= 1)
+        limits.append(check(e_t, ok, "`tangential_cor` must lie in [-1, 1]"))
     invalid = None
     if throw:
-        scene, mu, cor = guard((scene, mu, cor), limits)
+        scene, mu, cor, e_t = guard((scene, mu, cor, e_t), limits)
     else:
-        (scene, mu, cor), invalid = guard((scene, mu, cor), limits, throw=False)
-    traced = is_traced((scene, mu, cor))
+        (scene, mu, cor, e_t), invalid = guard(
+            (scene, mu, cor, e_t), limits, throw=False
+        )
+    traced = is_traced((scene, mu, cor, e_t))
     with inputs_guarded():
-        return _rigid_impact(scene, mu, cor, restitution, throw, traced, invalid)
+        return _rigid_impact(scene, mu, cor, restitution, e_t, throw, traced, invalid)
 
 
-def _rigid_impact(scene, mu, cor, restitution, throw, traced, invalid):
+def _tangential_restitution(e_t, mu, a, b, c, s0, v0, p, p_t):
+    """The impulse ``x`` of (R-4) along ``d = (b / a, 1)``: toward the slip
+    ``-e_t v0``, within Coulomb's cone and the energy cap."""
+    c_t = c - b * b / a  # slip per unit x; > 0 unless J_n, J_t are parallel
+    ok = c_t > 1e-12 * c
+    c_t = jnp.where(ok, c_t, 1.0)
+    s_r = s0 + a * p - b * p_t  # separation speed after Routh's process
+    v_r = v0 - b * p + c * p_t  # slip after it
+    target = (-e_t * v0 - v_r) / c_t
+    lo, hi = -jnp.inf, jnp.inf
+
+    # The cone, |P_t + x| <= mu (p + b x / a), as k x <= r with r >= 0.
+    def bound(k, r, lo, hi):
+        safe = jnp.where(k == 0, 1.0, k)
+        hi = jnp.where(k > 0, jnp.minimum(hi, r / safe), hi)
+        lo = jnp.where(k < 0, jnp.maximum(lo, r / safe), lo)
+        return lo, hi
+
+    slack_up = jnp.maximum(mu * p - p_t, 0.0)  # rounding may leave -1e-17
+    slack_down = jnp.maximum(mu * p + p_t, 0.0)
+    lo, hi = bound(1.0 - mu * b / a, slack_up, lo, hi)
+    lo, hi = bound(-(1.0 + mu * b / a), slack_down, lo, hi)
+    # The energy, dT(x) = dT_R + g x + c~ x^2 / 2 <= max(dT_R, 0), with
+    # dT_R = int s dp + int v dP_t of Routh's process (s, v linear along
+    # each straight piece of the impulse path): its interval of x holds 0.
+    g = s_r * b / a + v_r
+    root = jnp.sqrt(g * g + 1e-300)
+    # dT(x) - dT_R = x (g + c~ x / 2) <= max(-dT_R, 0) = headroom
+    dT_r = _routh_energy(a, b, c, s0, v0, p, p_t)
+    headroom = jnp.maximum(-dT_r, 0.0)
+    disc = jnp.sqrt(g * g + 2.0 * c_t * headroom)
+    # roots of c~/2 x^2 + g x - headroom = 0, without cancellation
+    q = -0.5 * (g + jnp.where(g >= 0, disc, -disc))
+    q = jnp.where(q == 0, -root, q)
+    r1 = q / (0.5 * c_t)
+    r2 = jnp.where(q == 0, 0.0, -headroom / jnp.where(q == 0, 1.0, q))
+    lo = jnp.maximum(lo, jnp.minimum(r1, r2))
+    hi = jnp.minimum(hi, jnp.maximum(r1, r2))
+    x = jnp.clip(target, jnp.minimum(lo, 0.0), jnp.maximum(hi, 0.0))
+    return jnp.where(ok, x, 0.0)
+
+
+def _routh_energy(a, b, c, s0, v0, p, p_t):
+    """The change of kinetic energy from the impulse ``(p, P_t)``: with
+    ``dT = s dp + v dP_t`` and ``s``, ``v`` linear in the impulse,
+    ``dT = s0 p + v0 P_t + (a p^2 - 2 b p P_t + c P_t^2) / 2`` (the quadratic
+    form of ``J M^-1 J^T`` in the impulse; path independent)."""
+    return s0 * p + v0 * p_t + 0.5 * (a * p * p - 2.0 * b * p * p_t + c * p_t * p_t)
+
+
+def _rigid_impact(scene, mu, cor, restitution, e_t, throw, traced, invalid):
     scene = scene.at_first_contact()  # a free flight first, in closed form
     q0, q_dot0 = scene.initial_state()
     _, j_n, j_t = scene.kinematics(q0)
@@ -244,6 +346,9 @@ def _rigid_impact(scene, mu, cor, restitution, throw, traced, invalid):
     p_t = dpt1 * jnp.where(first, p_f, s.ps) + jnp.where(
         first, 0.0, dpt2 * (p_f - s.ps)
     )
+    if e_t is not None:
+        x = _tangential_restitution(e_t, mu, a, b, c, s0, v0, p_f, p_t)
+        p_f, p_t = p_f + x * b / a, p_t + x
     q_dot = q_dot0 + inv_m * (-j_n * p_f + j_t * p_t)
     s_final = -(j_n @ q_dot)
     out = dict(scene.report(q0, q_dot))
