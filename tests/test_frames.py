@@ -252,6 +252,7 @@ def _tiny_posterior(fit) -> PosteriorResult:
             "draws": take,
             "replicated_draws": replicated,
             "model_draws": replicated,
+            "log_likelihood_draws": rng.normal(size=(chains, len(take), n)),
         },
         fit=fit,
         num_warmup=5,
@@ -271,6 +272,7 @@ def test_posterior_to_arviz_and_dataframe(rigid):
     data = post.to_arviz()
     assert isinstance(data, az.InferenceData)
     assert set(data.groups()) >= {
+        "log_likelihood",
         "posterior",
         "sample_stats",
         "observed_data",
@@ -294,6 +296,11 @@ def test_posterior_to_arviz_and_dataframe(rigid):
     np.testing.assert_array_equal(pp["draw"], [0, 2, 4])
     np.testing.assert_array_equal(pp, post.predictive["replicated_draws"][..., 1])
     np.testing.assert_array_equal(data.constant_data["angle_deg"], [26.0, 34.1, 45.6])
+    # each row's log-likelihood at those draws, passed through (its values
+    # are checked against an independent likelihood in test_references)
+    ll = data.log_likelihood["rows"]
+    assert ll.dims == ("chain", "draw", "row") and ll.shape == (2, 3, 3)
+    np.testing.assert_array_equal(ll, post.predictive["log_likelihood_draws"])
     draws = post.to_dataframe()
     assert list(draws.columns) == ["chain", "draw", "cor", "log_density", "divergent"]
     np.testing.assert_array_equal(draws["cor"], post.samples[..., 0].ravel())

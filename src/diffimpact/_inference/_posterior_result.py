@@ -56,7 +56,9 @@ class PosteriorResult:
       noise included), each ``(3, n_rows, n_quantities)``, from the draws
       ``draws`` of every chain (a few, evenly spaced), whose predictions are
       ``model_draws`` and ``replicated_draws``, ``(chains, len(draws),
-      n_rows, n_quantities)``;
+      n_rows, n_quantities)``, with the noise each draw used
+      (``noise_draws``) and each row's log-likelihood there
+      (``log_likelihood_draws``, ``(chains, len(draws), n_rows)``);
     - `sample_stats`: per draw ``(chains, draws)``: ``acceptance_rate``,
       ``tree_depth`` (NUTS doublings), ``n_steps`` (leapfrog steps),
       ``energy`` (the Hamiltonian's), ``reached_max_treedepth``;
@@ -235,7 +237,13 @@ class PosteriorResult:
         - ``posterior_predictive``: the same variables, replicated
           measurements (noise included) at a few evenly spaced draws of
           every chain (``predictive["draws"]``: the ``draw`` coordinate);
-        - ``constant_data``: each row's inputs, named and in units likewise.
+        - ``constant_data``: each row's inputs, named and in units likewise;
+        - ``log_likelihood``: ``rows``, each row's log-likelihood (the sum
+          over its measured quantities of the Gaussian log density, with
+          the draw's noise factor where the file gives no sigma) at the same
+          draws, ``(chain, draw, row)``, for ``arviz.loo`` and
+          ``arviz.waic``; these are a few draws per chain, so check the
+          Pareto k diagnostics ArviZ reports.
         """
         az = optional("arviz", "PosteriorResult.to_arviz")
         import xarray as xr  # arviz's own dependency
@@ -285,10 +293,13 @@ class PosteriorResult:
             "constant_data": xr.Dataset(inputs, coords=rows),
         }
         if replicated:
-            groups["posterior_predictive"] = xr.Dataset(
-                replicated,
-                coords={"chain": chains, "draw": np.asarray(pp["draws"]), **rows},
-            )
+            pcoords = {"chain": chains, "draw": np.asarray(pp["draws"]), **rows}
+            groups["posterior_predictive"] = xr.Dataset(replicated, coords=pcoords)
+            if "log_likelihood_draws" in pp:
+                ll = pp["log_likelihood_draws"]
+                groups["log_likelihood"] = xr.Dataset(
+                    {"rows": (("chain", "draw", "row"), ll)}, coords=pcoords
+                )
         return az.InferenceData(
             attrs={
                 "inference_library": "diffimpact (NUTS by blackjax)",
@@ -391,6 +402,14 @@ def _predictive(problem, pos, data, relative, seed) -> dict:
         scale = np.sqrt(ss / rng.chisquare(n_rel, len(pred)))
     noise = sigma * np.where(relative, scale[:, None, None], 1.0)
     replicated = pred + noise * rng.standard_normal(pred.shape)
+    # Each row's log-likelihood at each of these draws (the measured
+    # quantities' Gaussian densities, with the draw's noise factor where the
+    # file gives no sigma), for ArviZ's LOO and WAIC; NaN where the solve
+    # failed at a draw.
+    z = (measured - pred) / noise
+    terms = np.where(mask, -0.5 * z**2 - np.log(noise * np.sqrt(2.0 * np.pi)), 0.0)
+    failed = (~ok & mask).any(axis=2)
+    log_lik = np.where(failed, np.nan, terms.sum(axis=2))
     q = np.asarray(_QUANTILES)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", RuntimeWarning)  # all-NaN: unmeasured
@@ -406,6 +425,10 @@ def _predictive(problem, pos, data, relative, seed) -> dict:
             "draws": take,
             "model_draws": pred.reshape(chains, len(take), *pred.shape[1:]),
             "replicated_draws": replicated.reshape(chains, len(take), *pred.shape[1:]),
+            "noise_draws": np.broadcast_to(noise, pred.shape).reshape(
+                chains, len(take), *pred.shape[1:]
+            ),
+            "log_likelihood_draws": log_lik.reshape(chains, len(take), -1),
         }
 
 
