@@ -95,8 +95,8 @@ def test_ellipse_on_the_end_of_an_axis_does_not_spin():
     assert abs(float(r.extras["angular_velocity_after"])) < 1e-9
     normal = S.NormalImpact(m, b**2 / a, BAR, FLAT, velocity=2.0)
     ref = di.simulate(normal, di.Hertz(), "smooth")
-    assert float(r.contact_time) == pytest.approx(float(ref.contact_time), rel=1e-9)
-    assert float(r.cor_newton) == pytest.approx(1.0, abs=1e-9)
+    assert float(r.contact_time) == pytest.approx(float(ref.contact_time), rel=1.3e-10)
+    assert float(r.cor_newton) == pytest.approx(1.0, abs=1.3e-10)
 
 
 def _kinetic(body, vx, vy, w):
@@ -281,7 +281,9 @@ def test_a_triangle_on_its_corner_does_not_spin():
     ref = di.simulate(
         S.NormalImpact(m, r, BAR, FLAT, velocity=1.5), di.Hertz(), "smooth"
     )
-    assert float(out.contact_time) == pytest.approx(float(ref.contact_time), rel=1e-9)
+    assert float(out.contact_time) == pytest.approx(
+        float(ref.contact_time), rel=2.3e-11
+    )
     # Turned by 10 deg, the same corner touches off-centre: the body spins.
     turned = dataclasses.replace(body, orientation=math.radians(10.0))
     spin = di.simulate(turned, di.Hertz()).extras["angular_velocity_after"]

@@ -42,8 +42,10 @@ def test_tc_constant_matches_physics_md():
 
 @pytest.mark.parametrize("method", ["smooth", "events", "quadrature"])
 def test_closed_forms_over_speeds(method):
-    """d_max and t_c to 1e-7 relative and e = 1 within 1e-8, at default settings,
-    over four decades of speed in one vmapped call."""
+    """d_max and t_c to 3e-9 relative and e = 1 within 4e-9, at default
+    settings, over four decades of speed in one vmapped call (measured
+    3.2e-10 and 4.0e-10, both on the events path; smooth 2.7e-12,
+    quadrature 1.6e-11 and 0)."""
     mat = steel(jnp.inf)
     speeds = jnp.array([1e-3, 0.01, 0.3, 1.0, 10.0])
 
@@ -56,9 +58,9 @@ def test_closed_forms_over_speeds(method):
         d_max, t_c, k, c = closed_form(
             di.scenes.NormalImpact(MASS, RADIUS, mat, mat, velocity=v)
         )
-        assert rel(r.max_deflection[i], d_max) < 1e-7
-        assert rel(r.contact_time[i], t_c) < 1e-7
-        assert rel(r.compression_time[i], t_c / 2) < 1e-7
+        assert rel(r.max_deflection[i], d_max) < 3e-9
+        assert rel(r.contact_time[i], t_c) < 3e-9
+        assert rel(r.compression_time[i], t_c / 2) < 3e-9
         # The DEM form's constant 2.8683 has 5 digits: agree to its precision.
         dem = (
             2.8683
@@ -66,7 +68,7 @@ def test_closed_forms_over_speeds(method):
         )
         assert rel(r.contact_time[i], dem) < 2e-5
     for f in ("cor_newton", "cor_poisson", "cor_energetic"):
-        np.testing.assert_allclose(getattr(r, f), 1.0, rtol=0, atol=1e-8)
+        np.testing.assert_allclose(getattr(r, f), 1.0, rtol=0, atol=4e-9)
     np.testing.assert_array_equal(r.permanent_deformation, 0.0)
     # Peak force is K d_max^1.5.
     np.testing.assert_allclose(
