@@ -278,20 +278,22 @@ def _tangential_restitution(e_t, mu, a, b, c, s0, v0, p, p_t):
     slack_down = jnp.maximum(mu * p + p_t, 0.0)
     lo, hi = bound(1.0 - mu * b / a, slack_up, lo, hi)
     lo, hi = bound(-(1.0 + mu * b / a), slack_down, lo, hi)
-    # The energy, dT(x) = dT_R + g x + c~ x^2 / 2 <= max(dT_R, 0), with
-    # dT_R = int s dp + int v dP_t of Routh's process (s, v linear along
-    # each straight piece of the impulse path): its interval of x holds 0.
+    # The energy, dT(x) = dT_R + g x + c~ x^2 / 2 <= max(dT_R, 0), with dT_R
+    # Routh's (`_routh_energy`) and g = dT/dx at x = 0: an interval holding 0.
     g = s_r * b / a + v_r
-    root = jnp.sqrt(g * g + 1e-300)
     # dT(x) - dT_R = x (g + c~ x / 2) <= max(-dT_R, 0) = headroom
     dT_r = _routh_energy(a, b, c, s0, v0, p, p_t)
     headroom = jnp.maximum(-dT_r, 0.0)
-    disc = jnp.sqrt(g * g + 2.0 * c_t * headroom)
-    # roots of c~/2 x^2 + g x - headroom = 0, without cancellation
+    # roots of c~/2 x^2 + g x - headroom = 0, without cancellation; the
+    # square root and the division guarded where both vanish (an elastic,
+    # slip-free impact), so that no gradient is NaN
+    arg = g * g + 2.0 * c_t * headroom
+    pos = arg > 0
+    disc = jnp.where(pos, jnp.sqrt(jnp.where(pos, arg, 1.0)), 0.0)
     q = -0.5 * (g + jnp.where(g >= 0, disc, -disc))
-    q = jnp.where(q == 0, -root, q)
+    nz = q != 0
     r1 = q / (0.5 * c_t)
-    r2 = jnp.where(q == 0, 0.0, -headroom / jnp.where(q == 0, 1.0, q))
+    r2 = jnp.where(nz, -headroom / jnp.where(nz, q, 1.0), 0.0)
     lo = jnp.maximum(lo, jnp.minimum(r1, r2))
     hi = jnp.minimum(hi, jnp.maximum(r1, r2))
     x = jnp.clip(target, jnp.minimum(lo, 0.0), jnp.maximum(hi, 0.0))
