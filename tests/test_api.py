@@ -16,8 +16,8 @@ def test_vmap_matches_loop():
     batched = jax.vmap(lambda v: di.simulate(sphere(v), di.JacksonGreen()))(speeds)
     for i, v in enumerate(speeds):
         single = di.simulate(sphere(float(v)), di.JacksonGreen())
-        assert rel(batched.contact_time[i], single.contact_time) < 1e-12
-        assert rel(batched.cor_newton[i], single.cor_newton) < 1e-12
+        assert rel(batched.contact_time[i], single.contact_time) < 8e-13
+        assert rel(batched.cor_newton[i], single.cor_newton) < 8e-13
 
 
 def test_no_recompile_for_new_numbers(monkeypatch):
@@ -72,8 +72,8 @@ def test_state_carries_only_what_the_law_needs():
 
 
 def test_float32():
-    """float32 inputs run in float32 and agree with float64 to ~1e-4 at
-    float32-appropriate tolerances."""
+    """float32 inputs run in float32 and agree with float64 at
+    float32-appropriate tolerances (measured 1.4e-7, max_deflection's)."""
     f32 = jnp.float32
     mat = di.Material(f32(210e9), f32(0.3), f32(300e6), f32(7850))
     sc = di.scenes.NormalImpact(f32(MASS), f32(RADIUS), mat, mat, velocity=f32(1.0))
@@ -83,7 +83,7 @@ def test_float32():
     assert r32.contact_time.dtype == f32
     r64 = di.simulate(sphere(1.0, 300e6), di.JacksonGreen(), "quadrature")
     for f in ("contact_time", "cor_newton", "max_deflection", "permanent_deformation"):
-        assert rel(getattr(r32, f), getattr(r64, f)) < 1e-3, f
+        assert rel(getattr(r32, f), getattr(r64, f)) < 1.4e-6, f
 
 
 def test_one_route_per_kind_of_impact():

@@ -99,7 +99,7 @@ def test_smooth_gradients_all_fields(velocity, yield_strength):
 
 def test_elastic_impact_gradients():
     """Below yield: finite gradients, d/d(JG plastic constants) = 0."""
-    _check(0.05, 2e9, "smooth")
+    _check(0.05, 2e9, "smooth", tol=8e-7)  # measured 8.3e-8
 
 
 @pytest.mark.parametrize("method", ["quadrature", "events"])
