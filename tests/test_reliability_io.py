@@ -549,3 +549,50 @@ def test_unphysical_results_are_a_code():
         di.JacksonGreen(ep_decay=-5.0)
     with pytest.raises(ValueError, match="quadrature_order"):
         di.SolverSettings(quadrature_order=4)
+
+
+_DEMO_CLI = """
+import sys
+from diffimpact._cli import _main
+if sys.argv[1] == "kept":  # a kept program must be loaded, never traced again
+    def refuse(*a, **k):
+        raise AssertionError("the demo traced a program it had kept")
+    _main._demo_solve = _main._demo_gradient = refuse
+sys.exit(_main.main(["demo"]))
+"""
+
+
+def test_the_demo_keeps_its_traced_programs(tmp_path):
+    """`diffimpact demo` exports its four programs (jax.export) into the
+    cache folder on a first run; a second run loads them and traces nothing
+    (its builders replaced by ones that raise), printing the same numbers; a
+    damaged blob is traced afresh and replaced; with DIFFIMPACT_NO_CACHE=1
+    nothing is written."""
+    cache = tmp_path / "cache"
+    env = {**os.environ, "DIFFIMPACT_CACHE_DIR": str(cache)}
+
+    def run(mode, extra=None):
+        p = subprocess.run(
+            [sys.executable, "-c", _DEMO_CLI, mode],
+            env={**env, **(extra or {})},
+            capture_output=True,
+            text=True,
+        )
+        assert p.returncode == 0, p.stderr[-2000:]
+        # the timings differ run to run; every number else must not
+        return [x for x in p.stdout.splitlines() if "this run" not in x]
+
+    first = run("trace")
+    blobs = sorted((cache / "exported").iterdir())
+    assert [b.name.rsplit("-", 1)[0] for b in blobs] == [
+        "demo-events", "demo-gradient", "demo-quadrature", "demo-smooth",
+    ]  # fmt: skip
+    assert run("kept") == first
+    blobs[0].write_bytes(b"not a program")
+    assert run("trace") == first
+    assert blobs[0].stat().st_size > 1000  # replaced by a real one
+    run(
+        "trace",
+        {"DIFFIMPACT_NO_CACHE": "1", "DIFFIMPACT_CACHE_DIR": str(tmp_path / "off")},
+    )
+    assert not (tmp_path / "off").exists()

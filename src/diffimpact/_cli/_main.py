@@ -82,27 +82,92 @@ def _simulate_all(scene, law, methods):
     return results, timings
 
 
-def demo(args) -> int:
+# The demo's impact: a 10 mm bearing-steel ball on an AISI 1045 plate.
+_RADIUS = 5e-3
+_MASS = 4.0 / 3.0 * math.pi * _RADIUS**3 * 7850.0
+
+
+def _demo_scene(velocity, plate_yield=355e6):
     import diffimpact as di
 
     ball = di.Material(youngs_modulus=208e9, poisson_ratio=0.3, yield_strength=2e9)
-    plate = di.Material(youngs_modulus=205e9, poisson_ratio=0.29, yield_strength=355e6)
-    radius = 5e-3
-    mass = 4.0 / 3.0 * math.pi * radius**3 * 7850.0
-    scene = di.scenes.NormalImpact(
-        mass=mass, radius=radius, body=ball, flat=plate, velocity=args.velocity
-    )
+    plate = di.Material(205e9, 0.29, plate_yield)
+    return di.scenes.NormalImpact(_MASS, _RADIUS, ball, plate, velocity=velocity)
+
+
+def _demo_solve(method):
+    """The demo's solve by ``method`` as a function of the speed: the
+    report's fields and the result code.  The demo's own valid constants:
+    no traced input check and no raise from inside the program (a failure
+    is the code, checked after), so the program holds no host callback and
+    can be exported."""
+
+    def solve(velocity):
+        import diffimpact as di
+
+        r = di.simulate(
+            _demo_scene(velocity), di.JacksonGreen(), method, throw=False,
+            _guarded=False,
+        )  # fmt: skip
+        return {f: getattr(r, f) for _, f, _, _ in _FIELDS}, r.result._value
+
+    return solve
+
+
+def _demo_gradient():
+    """``d COR / d S_y`` through the quadrature solve, a function of the
+    speed (the smooth solve's reverse pass would cost seconds to trace)."""
+
+    def gradient(velocity):
+        import jax
+
+        import diffimpact as di
+
+        def cor(sy):
+            r = di.simulate(
+                _demo_scene(velocity, sy), di.JacksonGreen(), "quadrature",
+                throw=False, _guarded=False,
+            )  # fmt: skip
+            return r.cor_newton
+
+        return jax.grad(cor)(jax.numpy.asarray(355e6, jax.numpy.result_type(float)))
+
+    return gradient
+
+
+def demo(args) -> int:
+    import types
+
+    import jax.numpy as jnp
+
+    import diffimpact as di
+
+    from . import _exported
+
+    folder = compilation_cache_dir()
+    velocity = jnp.asarray(args.velocity, jnp.result_type(float))
     print(
-        f"diffimpact demo: a {radius * 2e3:.0f} mm bearing-steel ball "
-        f"({mass * 1e3:.2f} g) "
+        f"diffimpact demo: a {_RADIUS * 2e3:.0f} mm bearing-steel ball "
+        f"({_MASS * 1e3:.2f} g) "
         f"hits an AISI 1045 plate (S_y = 355 MPa) at {args.velocity} m/s.\n"
         "Modified Jackson-Green contact (elastic, elasto-plastic, restitution);\n"
         "three methods: smooth-switched ODE (default), exact event-switched ODE,\n"
         "and the ODE-free energy quadrature (the exact reference).\n"
     )
-    results, timings = _simulate_all(
-        scene, di.JacksonGreen(), ("smooth", "events", "quadrature")
-    )
+    results, timings = {}, {}
+    for m in ("smooth", "events", "quadrature"):
+        t0 = time.perf_counter()
+        fields, code = _exported.call(
+            f"demo-{m}", lambda m=m: _demo_solve(m), velocity, folder=folder
+        )
+        code = int(code)
+        if code != 0:
+            raise RuntimeError(
+                f"the demo's {m} solve failed: {di.result_name(code)} (try "
+                "another --velocity)"
+            )
+        results[m] = types.SimpleNamespace(**fields)
+        timings[m] = time.perf_counter() - t0
     print(_report(results))
     ref = results["quadrature"]
     print("\nrelative difference from quadrature (COR, contact time):")
@@ -112,24 +177,9 @@ def demo(args) -> int:
         e2 = abs(float(r.contact_time / ref.contact_time) - 1)
         print(
             f"  {m:8s} {e1:.1e}  {e2:.1e}   "
-            f"(first call incl. compile {timings[m]:.1f} s)"
+            f"({timings[m]:.1f} s this run)"
         )
-    import jax
-
-    def cor(sy, method):
-        p = di.Material(205e9, 0.29, sy)
-        sc = di.scenes.NormalImpact(mass, radius, ball, p, velocity=args.velocity)
-        # The demo's own valid constants: no traced input check, and a failure
-        # is a NaN checked below rather than a raise from inside the program.
-        # Without their host callbacks JAX stores the compiled gradient on
-        # disk, so a second demo starts at once.
-        r = di.simulate(sc, di.JacksonGreen(), method, throw=False, _guarded=False)
-        return r.cor_newton
-
-    # Through the quadrature path: the smooth solve's reverse pass would be
-    # traced again on every run, seconds each time (the disk cache skips
-    # compiling, not tracing; benchmarks/RESULTS.md, "Time to first result").
-    g = jax.grad(cor)(355e6, "quadrature")
+    g = _exported.call("demo-gradient", _demo_gradient, velocity, folder=folder)
     if not math.isfinite(float(g)):
         raise RuntimeError("the demo's gradient is not finite")
     print(
