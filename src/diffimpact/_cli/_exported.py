@@ -17,11 +17,11 @@ import hashlib
 import os
 import tempfile
 
+from ._files import versions
+
 
 def _key(name: str) -> str:
     import jax
-
-    from ._files import versions
 
     v = versions()
     text = "|".join(

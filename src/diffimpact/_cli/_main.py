@@ -175,10 +175,7 @@ def demo(args) -> int:
         r = results[m]
         e1 = abs(float(r.cor_newton / ref.cor_newton) - 1)
         e2 = abs(float(r.contact_time / ref.contact_time) - 1)
-        print(
-            f"  {m:8s} {e1:.1e}  {e2:.1e}   "
-            f"({timings[m]:.1f} s this run)"
-        )
+        print(f"  {m:8s} {e1:.1e}  {e2:.1e}   ({timings[m]:.1f} s this run)")
     g = _exported.call("demo-gradient", _demo_gradient, velocity, folder=folder)
     if not math.isfinite(float(g)):
         raise RuntimeError("the demo's gradient is not finite")
