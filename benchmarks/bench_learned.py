@@ -92,6 +92,15 @@ def synthetic(truth: str, n: int = 2000, seed: int = 0):
         exp = ellipse(di.JacksonGreen(), method="contact_space")
         out = jax.jit(jax.vmap(lambda r: di.predict(exp, r)))(rows)
         cor = np.asarray(out["cor_normal"])
+    data, exact = with_noise(inputs, out, truth, seed)
+    return data, cor, exact
+
+
+def with_noise(inputs: dict, out: dict, truth: str, seed: int):
+    """``(data, exact)``: the velocities after of ``out`` with 2 % Gaussian
+    noise (of each column's RMS; drawn with ``seed + 1``) as an in-memory
+    `ExperimentData` of the rows ``inputs``, and the noise-free values."""
+    n = len(next(iter(inputs.values())))
     rng = np.random.default_rng(seed + 1)
     outputs, sigmas, exact = {}, {}, {}
     for q in OUTPUTS:
@@ -109,7 +118,7 @@ def synthetic(truth: str, n: int = 2000, seed: int = 0):
         path=f"<synthetic {truth}>",
         columns={},
     )
-    return data, cor, exact
+    return data, exact
 
 
 def models(features):
@@ -157,6 +166,24 @@ def noise_floor(data, exact, test):
     )
 
 
+def plot_curve(ax, curve, floor: float, truth: str) -> None:
+    """Each model's held-out error against the training rows (the seeds'
+    mean, their range as error bars) and the noise floor."""
+    for m, e in curve.errors.items():
+        ax.errorbar(
+            curve.sizes, e.mean(axis=1),
+            yerr=[e.mean(axis=1) - e.min(axis=1), e.max(axis=1) - e.mean(axis=1)],
+            marker="o", capsize=3, label=m,
+        )  # fmt: skip
+    ax.axhline(floor, color="k", ls=":", lw=1, label="noise floor")
+    ax.set_xscale("log")
+    ax.set_yscale("log")
+    ax.set_xlabel("training rows")
+    ax.set_ylabel("held-out median relative error (kinetic norm)")
+    ax.set_title(f"truth: {truth}")
+    ax.legend(fontsize=7)
+
+
 def main(argv=None):
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--quick", action="store_true", help="one seed, 3 sizes")
@@ -196,19 +223,7 @@ def main(argv=None):
             f"median {np.median(gap):.2e}, 95 % {np.percentile(gap, 95):.2e}, "
             f"worst {gap.max():.2e}; held-out error {r.median_error(test):.4f}"
         )
-        for m, e in curve.errors.items():
-            ax.errorbar(
-                curve.sizes, e.mean(axis=1),
-                yerr=[e.mean(axis=1) - e.min(axis=1), e.max(axis=1) - e.mean(axis=1)],
-                marker="o", capsize=3, label=m,
-            )  # fmt: skip
-        ax.axhline(floor, color="k", ls=":", lw=1, label="noise floor")
-        ax.set_xscale("log")
-        ax.set_yscale("log")
-        ax.set_xlabel("training rows")
-        ax.set_ylabel("held-out median relative error (kinetic norm)")
-        ax.set_title(f"truth: {truth}")
-        ax.legend(fontsize=7)
+        plot_curve(ax, curve, floor, truth)
     fig.tight_layout()
     fig.savefig(HERE / "learned.png", dpi=120)
     print(f"\nwrote {HERE / 'learned.png'}")

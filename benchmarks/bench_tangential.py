@@ -31,11 +31,12 @@ import numpy as np  # noqa: E402
 from bench_learned import (  # noqa: E402
     FEATURES,
     INPUTS,
-    NOISE,
     OUTPUTS,
     ellipse,
     noise_floor,
+    plot_curve,
     states,
+    with_noise,
 )
 
 import diffimpact as di  # noqa: E402
@@ -66,19 +67,7 @@ def truth_outputs(truth: str, rows: dict) -> dict:
 def synthetic(truth: str, n: int = 2000, seed: int = 0):
     inputs = states(n, seed)
     out = truth_outputs(truth, {q: jnp.asarray(v) for q, v in inputs.items()})
-    rng = np.random.default_rng(seed + 1)
-    outputs, sigmas, exact = {}, {}, {}
-    for q in OUTPUTS:
-        y = np.asarray(out[q])
-        sigma = NOISE * np.sqrt(np.mean(y**2))
-        exact[q] = y
-        outputs[q] = y + sigma * rng.standard_normal(n)
-        sigmas[q] = np.full(n, sigma)
-    data = di.ExperimentData(
-        scene="planar_body", inputs=inputs, outputs=outputs, sigmas=sigmas,
-        provenance=f"synthetic ({truth})", path=f"<synthetic {truth}>", columns={},
-    )  # fmt: skip
-    return data, exact
+    return with_noise(inputs, out, truth, seed)
 
 
 def models():
@@ -119,15 +108,7 @@ def main():
         floor = np.mean([noise_floor(data, exact, t) for t in curve.test_rows.values()])
         print(f"\n{truth}: data made in {made:.1f} s; noise floor {floor:.4f}")
         print(curve.table())
-        for m, e in curve.errors.items():
-            ax.plot(curve.sizes, e.mean(axis=1), marker="o", label=m)
-        ax.axhline(floor, color="k", ls=":", lw=1, label="noise floor")
-        ax.set_xscale("log")
-        ax.set_yscale("log")
-        ax.set_xlabel("training rows")
-        ax.set_ylabel("held-out median relative error (kinetic norm)")
-        ax.set_title(f"truth: {truth}")
-        ax.legend(fontsize=7)
+        plot_curve(ax, curve, floor, truth)
     fig.tight_layout()
     fig.savefig(HERE / "learned_tangential.png", dpi=120)
     print(f"\nwrote {HERE / 'learned_tangential.png'}")
