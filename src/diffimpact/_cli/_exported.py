@@ -36,22 +36,30 @@ def call(name: str, build, *args, folder: str | None):
     loaded from ``folder`` when a run has kept it, else traced, exported,
     kept (when ``folder`` is given) and called."""
     import jax
-    from jax import export
 
     path = None if folder is None else os.path.join(folder, "exported", _key(name))
     if path is not None and os.path.exists(path):
-        try:
-            with open(path, "rb") as fh:
-                program = export.deserialize(bytearray(fh.read()))
+        program = _load(path)
+        if program is not None:
             return program.call(*args)
-        except Exception:  # a damaged or foreign blob: trace afresh below
-            pass
     shapes = [jax.ShapeDtypeStruct(jax.numpy.shape(a), jax.numpy.result_type(a))
               for a in args]  # fmt: skip
     program = _export(jax.jit(build()), shapes)
     if path is not None:
         _keep(path, program.serialize())
     return program.call(*args)
+
+
+def _load(path: str):
+    """The exported program kept at ``path``, or None for a damaged or
+    foreign blob (which the caller then traces afresh and replaces)."""
+    from jax import export
+
+    try:
+        with open(path, "rb") as fh:
+            return export.deserialize(bytearray(fh.read()))
+    except Exception:  # any unreadable blob: never fatal, traced again
+        return None
 
 
 def _export(fn, shapes):
@@ -82,4 +90,4 @@ def _keep(path: str, blob: bytes) -> None:
             fh.write(blob)
         os.replace(tmp, path)
     except OSError:  # a read-only cache: the demo still runs, traced each time
-        pass
+        return
