@@ -21,13 +21,13 @@ from . import scenes as scenes
 from ._inference._crossval import CrossValidation as CrossValidation
 from ._inference._crossval import cross_validate as cross_validate
 from ._inference._experiment import Experiment as Experiment
+from ._inference._features import CONTACT_FEATURES as CONTACT_FEATURES
+from ._inference._features import available_features as available_features
 from ._inference._fit import fit as fit
 from ._inference._fit_result import FitResult as FitResult
 from ._inference._fit_result import IdentifiabilityWarning as IdentifiabilityWarning
-from ._inference._learned import CONTACT_FEATURES as CONTACT_FEATURES
 from ._inference._learned import Hybrid as Hybrid
 from ._inference._learned import Learned as Learned
-from ._inference._learned import available_features as available_features
 from ._inference._learning_curve import LearningCurve as LearningCurve
 from ._inference._learning_curve import learning_curve as learning_curve
 from ._inference._learning_curve import load_model as load_model
@@ -44,6 +44,7 @@ from ._inference._priors import LogUniformPrior as LogUniformPrior
 from ._inference._priors import NormalPrior as NormalPrior
 from ._inference._priors import UniformPrior as UniformPrior
 from ._inference._priors import default_prior as default_prior
+from ._inference._residual import Residual as Residual
 from ._inference._sweep import sweep as sweep
 from ._inference._sweep import sweep_map as sweep_map
 from ._inference._sweep_inputs import grid as grid

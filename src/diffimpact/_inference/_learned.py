@@ -26,7 +26,6 @@ the constant: the physics is the prior, the data bend it.
 
 from __future__ import annotations
 
-import itertools
 import math
 
 import equinox as eqx
@@ -35,8 +34,8 @@ import jax.numpy as jnp
 import jax.random as jr
 from jaxtyping import Array
 
-from .._checks import as_float
 from ..scenes._planar import AbstractPlanarScene
+from ._corrections import Polynomial, _Network
 from ._experiment import (
     Experiment,
     get_path,
@@ -44,30 +43,13 @@ from ._experiment import (
     with_inputs,
     with_parameters,
 )
+from ._features import (
+    available_features,
+    feature_values,
+    feature_width,
+)
 from ._predict import predict
-from ._scenes import scene_spec
-
-# Features of the state at first contact, from the contact-space
-# quantities of a planar scene (contact-space page, CS-1): with the contact
-# Jacobians J_n (into the flat), J_t and the mass matrix M, the approach
-# speed s_0 = J_n q_dot, the slip v_0 = J_t q_dot, and the inverse effective masses
-# a = J_n M^-1 J_n^T, b = J_n M^-1 J_t^T, c = J_t M^-1 J_t^T, made
-# dimensionless by the body's mass.  They describe the impact independently
-# of how the body is parametrised (an ellipse's orientation and a bar's
-# tilt give the same features for the same contact).  With the contact
-# radius they are what a compliant law's COR depends on besides the
-# materials: the approach speed, the effective mass and the curvature
-# (Johnson 1985, sec. 11.4; Jackson-Green loading and unloading, JG-5 to
-# JG-10).
-CONTACT_FEATURES = {
-    "normal_speed": "approach speed of the contact point, J_n q_dot [m/s]",
-    "tangential_speed": "slip of the contact point at first contact, J_t q_dot [m/s]",
-    "slip_ratio": "tangential over normal approach speed, v_0 / s_0 [-]",
-    "normal_mobility": "m J_n M^-1 J_n^T: mass over the effective normal mass [-]",
-    "coupling": "m J_n M^-1 J_t^T: the normal-tangential coupling [-]",
-    "tangential_mobility": "m J_t M^-1 J_t^T [-]",
-    "contact_radius": "effective radius of curvature at the first contact (G-2) [m]",
-}
+from ._residual import PLANAR_OUTPUTS, Residual
 
 DOMAINS = {
     "unit": "(0, 1)",
@@ -133,106 +115,6 @@ def _inside(domain: str, value: float) -> bool:
     if domain == "nonnegative":
         return value > 0.0  # a start exactly at 0 has no finite raw value
     return value > 0.0
-
-
-def available_features(scene) -> list[str]:
-    """The feature names a scene offers: the contact-space features of a
-    planar scene, and every input its data rows may set (``orientation`` as
-    its cosine and sine)."""
-    names = list(CONTACT_FEATURES) if isinstance(scene, AbstractPlanarScene) else []
-    if not isinstance(scene, AbstractPlanarScene) and hasattr(scene, "velocity"):
-        names.append("normal_speed")
-    return names + sorted(scene_spec(scene).inputs)
-
-
-def feature_values(experiment: Experiment, names) -> Array:
-    """The named features of ``experiment``'s scene, shape ``(k,)`` with
-    ``orientation`` counted twice (cosine, sine)."""
-    scene = experiment.scene
-    out = []
-    contact = None
-    if not names:
-        return jnp.zeros(0)
-    for name in names:
-        if name in CONTACT_FEATURES and isinstance(scene, AbstractPlanarScene):
-            if contact is None:
-                contact = _contact(scene)
-            out.append(contact[name])
-        elif name == "normal_speed":
-            out.append(as_float(scene.velocity))
-        else:
-            value = getattr(scene, scene_spec(scene).inputs[name])
-            if value is None:  # an optional input left unset (a height)
-                raise ValueError(
-                    f"feature {name!r}: the scene's {name} is not set (None); "
-                    "give it in every row or choose another feature"
-                )
-            value = as_float(value)
-            out.extend(
-                [jnp.cos(value), jnp.sin(value)] if name == "orientation" else [value]
-            )
-    return jnp.stack(out)
-
-
-def feature_width(names) -> int:
-    return sum(2 if n == "orientation" else 1 for n in names)
-
-
-def _contact(scene: AbstractPlanarScene) -> dict:
-    scene = scene.at_first_contact()
-    q0, q_dot0 = scene.initial_state()
-    _, j_n, j_t = scene.kinematics(q0)
-    m = scene.mass_diagonal()
-    inv_m = 1.0 / m
-    s0, v0 = j_n @ q_dot0, j_t @ q_dot0
-    return {
-        "contact_radius": scene.contact().effective_radius,
-        "normal_speed": s0,
-        "tangential_speed": v0,
-        "slip_ratio": v0 / s0,
-        "normal_mobility": m[0] * jnp.sum(j_n * inv_m * j_n),
-        "coupling": m[0] * jnp.sum(j_n * inv_m * j_t),
-        "tangential_mobility": m[0] * jnp.sum(j_t * inv_m * j_t),
-    }
-
-
-class Polynomial(eqx.Module):
-    """All monomials of the standardised features up to `degree` (the
-    constant excluded: it is `Learned`'s), with coefficients from zero."""
-
-    coefficients: Array
-    powers: tuple[tuple[int, ...], ...] = eqx.field(static=True)
-
-    def __init__(self, width: int, degree: int):
-        self.powers = tuple(
-            p
-            for d in range(1, degree + 1)
-            for p in itertools.combinations_with_replacement(range(width), d)
-        )
-        self.coefficients = jnp.zeros(len(self.powers))
-
-    def __call__(self, z):
-        terms = jnp.stack([jnp.prod(z[jnp.asarray(p)]) for p in self.powers])
-        return terms @ self.coefficients
-
-
-class _Network(eqx.Module):
-    """An MLP whose last layer starts at zero: the correction is zero, the
-    parameter its constant, until training moves it."""
-
-    mlp: eqx.nn.MLP
-
-    def __init__(self, width_in: int, width: int, depth: int, key):
-        mlp = eqx.nn.MLP(width_in, "scalar", width, depth, jax.nn.tanh, key=key)
-        last = mlp.layers[-1]
-        self.mlp = eqx.tree_at(
-            lambda m: (m.layers[-1].weight, m.layers[-1].bias),
-            mlp,
-            (jnp.zeros_like(last.weight), jnp.zeros_like(last.bias)),
-        )
-
-    def __call__(self, z):
-        return self.mlp(z)
 
 
 KINDS = ("mlp", "polynomial", "constant")
@@ -384,7 +266,10 @@ class Hybrid(eqx.Module):
     it: ``"cor"``, ``"mu"``, ``"yield_strength"``, a dotted path) ->
     `Learned`.  Each function is bound to its parameter (its domain and
     start value); a feature the scene does not offer is refused, naming
-    the ones it does.
+    the ones it does.  `residual`: None, or a `Residual` correction added
+    to the predicted outputs (residual physics, for what no parameter of
+    the law can express); `learned` may then be empty, the physics keeping
+    the experiment's values.
 
     `predict` gives what `diffimpact.predict` gives, for one row of inputs;
     `jit`, `vmap` and `grad` compose with it.
@@ -392,14 +277,25 @@ class Hybrid(eqx.Module):
 
     experiment: Experiment
     learned: dict[str, Learned]
+    residual: Residual | None
 
-    def __init__(self, experiment: Experiment, learned: dict):
+    def __init__(
+        self, experiment: Experiment, learned: dict, residual: Residual | None = None
+    ):
         if not isinstance(experiment, Experiment):
             raise TypeError(
                 f"Hybrid: expected an Experiment, got {type(experiment).__name__}"
             )
-        if not learned:
-            raise ValueError("Hybrid: give at least one learned parameter")
+        if residual is not None and not isinstance(residual, Residual):
+            raise TypeError(
+                f"Hybrid.residual: expected a diffimpact.Residual or None, got "
+                f"{type(residual).__name__}"
+            )
+        learned = dict(learned or {})
+        if not learned and residual is None:
+            raise ValueError(
+                "Hybrid: give at least one learned parameter or a residual"
+            )
         offered = available_features(experiment.scene)
         paths = {}
         for name, fn in learned.items():
@@ -408,13 +304,8 @@ class Hybrid(eqx.Module):
                     f"learned parameter {name!r}: expected a diffimpact.Learned, "
                     f"got {type(fn).__name__}"
                 )
-            unknown = [f for f in fn.features if f not in offered]
-            if unknown:
-                raise ValueError(
-                    f"learned parameter {name!r}: feature(s) {unknown} are not "
-                    f"offered by scene {type(experiment.scene).__name__}; expected "
-                    f"any of {offered}"
-                )
+            _check_features(f"learned parameter {name!r}", fn.features, offered,
+                            experiment)  # fmt: skip
             path = resolve_parameter(experiment, name)
             twice = [n for n, p in paths.items() if p == path]
             if twice:
@@ -423,6 +314,16 @@ class Hybrid(eqx.Module):
                     f"parameter ({path}); give it once"
                 )
             paths[name] = path
+        if residual is not None:
+            _check_features("residual", residual.features, offered, experiment)
+            if residual.outputs is None:
+                if not isinstance(experiment.scene, AbstractPlanarScene):
+                    raise ValueError(
+                        f"residual: name the outputs it corrects for scene "
+                        f"{type(experiment.scene).__name__} (Residual(features, "
+                        "outputs=(...)), e.g. 'rebound_velocity')"
+                    )
+                residual = residual.bind(PLANAR_OUTPUTS)
         experiment = with_parameters(experiment, list(paths.values()))
         self.experiment = experiment
         self.learned = {
@@ -431,6 +332,7 @@ class Hybrid(eqx.Module):
             else fn.bind(paths[n], _value(experiment, paths[n]))
             for n, fn in learned.items()
         }
+        self.residual = residual
 
     def features(self, inputs: dict) -> dict:
         """Each learned parameter's feature vector at one row's ``inputs``."""
@@ -442,10 +344,21 @@ class Hybrid(eqx.Module):
         x = self.features(inputs)
         return {p: fn(x[p]) for p, fn in self.learned.items()}
 
+    def correction(self, inputs: dict) -> dict:
+        """The residual's correction of each output at one row's ``inputs``
+        (quantity -> SI value; empty without a residual)."""
+        if self.residual is None:
+            return {}
+        e = with_inputs(self.experiment, inputs)
+        dy = self.residual(feature_values(e, self.residual.features))
+        return dict(zip(self.residual.outputs, dy, strict=True))
+
     def experiment_at(self, inputs: dict) -> Experiment:
         """The plain `Experiment` of one row: its inputs set and every learned
         parameter at its value there."""
         e = with_inputs(self.experiment, inputs)
+        if not self.learned:
+            return e
         x = {p: feature_values(e, fn.features) for p, fn in self.learned.items()}
         paths = list(self.learned)
         values = []
@@ -464,21 +377,63 @@ class Hybrid(eqx.Module):
         return eqx.tree_at(lambda m: [get_path(m, p) for p in paths], e, values)
 
     def predict(self, inputs: dict, *, throw: bool = True) -> dict:
-        """`diffimpact.predict` of one row with the learned parameters."""
-        return predict(self.experiment_at(inputs), {}, throw=throw)
+        """`diffimpact.predict` of one row with the learned parameters, plus
+        the residual's correction of its outputs (if any)."""
+        out = predict(self.experiment_at(inputs), {}, throw=throw)
+        if self.residual is None:
+            return out
+        missing = [q for q in self.residual.outputs if q not in out]
+        if missing:
+            raise ValueError(
+                f"residual: output(s) {missing} are not predicted by the "
+                f"experiment; expected any of {sorted(q for q in out if q != 'result')}"
+            )
+        out = dict(out)
+        for q, dy in self.correction(inputs).items():
+            out[q] = out[q] + dy
+        return out
 
     def penalty(self, inputs: dict):
         """The sum of squared corrections at one row (what training keeps
-        small so that the parameters stay near their constants)."""
+        small so that the parameters stay near their constants and the
+        residual near zero)."""
         x = self.features(inputs)
-        return sum(fn.deviation(x[p]) ** 2 for p, fn in self.learned.items())
+        total = sum(
+            (fn.deviation(x[p]) ** 2 for p, fn in self.learned.items()), jnp.zeros(())
+        )
+        if self.residual is not None:
+            e = with_inputs(self.experiment, inputs)
+            f = self.residual.deviation(feature_values(e, self.residual.features))
+            total = total + jnp.sum(f**2)
+        return total
 
-    def with_scaling(self, rows: dict) -> Hybrid:
+    def with_scaling(self, rows: dict, outputs: dict | None = None) -> Hybrid:
         """Standardise every function's features on ``rows`` (a dict of
-        input arrays)."""
+        input arrays); given the measured ``outputs`` of those rows
+        (quantity -> array, NaN where not measured), scale the residual's
+        correction of each by its spread."""
         xs = jax.vmap(self.features)(rows)
         new = {p: fn.with_scaling(xs[p]) for p, fn in self.learned.items()}
-        return eqx.tree_at(lambda h: h.learned, self, new)
+        out = eqx.tree_at(lambda h: h.learned, self, new)
+        if self.residual is None:
+            return out
+        r = self.residual
+        xr = jax.vmap(
+            lambda row: feature_values(with_inputs(self.experiment, row), r.features)
+        )(rows)
+        y = None
+        if outputs is not None and all(q in outputs for q in r.outputs):
+            y = jnp.stack([jnp.asarray(outputs[q]) for q in r.outputs], axis=1)
+        return eqx.tree_at(lambda h: h.residual, out, r.with_scaling(xr, y))
+
+
+def _check_features(what, features, offered, experiment):
+    unknown = [f for f in features if f not in offered]
+    if unknown:
+        raise ValueError(
+            f"{what}: feature(s) {unknown} are not offered by scene "
+            f"{type(experiment.scene).__name__}; expected any of {offered}"
+        )
 
 
 def _value(experiment, path):

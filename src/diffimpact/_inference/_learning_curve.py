@@ -151,6 +151,17 @@ def _summary(model) -> dict:
                 p: {"features": list(f.features), "kind": f.kind, "domain": f.domain}
                 for p, f in model.learned.items()
             },
+            **(
+                {}
+                if model.residual is None
+                else {
+                    "residual": {
+                        "features": list(model.residual.features),
+                        "outputs": list(model.residual.outputs),
+                        "kind": model.residual.kind,
+                    }
+                }
+            ),
         }
     raise TypeError(
         f"expected a diffimpact.Hybrid or VelocityNetwork, got {type(model).__name__}"

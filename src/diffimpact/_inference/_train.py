@@ -184,15 +184,16 @@ def _rows_of_np(inputs):
 def _has_penalty(model) -> bool:
     """Whether the regularisation weighs anything: a learned function that
     is not a constant."""
-    return isinstance(model, Hybrid) and any(
-        fn.correction is not None for fn in model.learned.values()
+    return isinstance(model, Hybrid) and (
+        model.residual is not None
+        or any(fn.correction is not None for fn in model.learned.values())
     )
 
 
 def _trainable(model):
     """The filter of what training moves: the learned functions' constants
-    and corrections (never the experiment's other numbers, nor the feature
-    scaling); all of a network's weights."""
+    and corrections and the residual's weights (never the experiment's other
+    numbers, nor any scaling); all of a network's weights."""
     spec = jax.tree.map(lambda _: False, model)
     if isinstance(model, VelocityNetwork):
         return eqx.tree_at(
@@ -207,7 +208,14 @@ def _trainable(model):
         )
         for p, fn in model.learned.items()
     }
-    return eqx.tree_at(lambda m: m.learned, spec, learned)
+    spec = eqx.tree_at(lambda m: m.learned, spec, learned)
+    if model.residual is not None:
+        spec = eqx.tree_at(
+            lambda m: m.residual.correction,
+            spec,
+            jax.tree.map(eqx.is_inexact_array, model.residual.correction),
+        )
+    return spec
 
 
 def train(
@@ -307,11 +315,8 @@ def train(
         scale = np.nanstd(np.asarray(meas_tr), axis=0)
     scale = np.where(scale > 0, scale, 1.0)
     rows_tr = _rows_of(data, tr)
-    if isinstance(model, VelocityNetwork):
-        outs = {q: data.outputs[q][tr] for q in quantities}
-        model = eqx.filter_jit(type(model).with_scaling)(model, rows_tr, outs)
-    else:
-        model = eqx.filter_jit(type(model).with_scaling)(model, rows_tr)
+    outs = {q: data.outputs[q][tr] for q in data.outputs}
+    model = eqx.filter_jit(type(model).with_scaling)(model, rows_tr, outs)
     scale = jnp.asarray(scale)
     train_batch = _padded(data, tr, quantities, scale, per_row)
     val_batch = _padded(data, val, quantities, scale, per_row) if len(val) else None
