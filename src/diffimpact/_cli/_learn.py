@@ -2,14 +2,17 @@
 learned from an experiment CSV and compared with the plain physics and a
 plain network on held-out rows.
 
-    diffimpact learn DATA.csv [--learn cor[=FEATURES]] [--holdout 0.3] [--out DIR]
+    diffimpact learn DATA.csv [--learn cor[=FEATURES]] [--no-residual]
+                              [--holdout 0.3] [--out DIR]
 
 trains, on the rows not held out, the rigid impact law (Routh's method
 with Coulomb friction) with constant COR and mu, the same law with the named
-parameters learned (`diffimpact.Learned`), and a plain MLP; prints their
-median held-out errors and writes, into DIR: ``learn.json`` (the models,
-their held-out errors, the rows, provenance), ``errors.csv`` (each row's
-error under each model) and ``hybrid.eqx`` (the trained hybrid,
+parameters learned (`diffimpact.Learned`), that hybrid plus a learned
+correction of its outputs (`diffimpact.Residual`; not with
+``--no-residual``), and a plain MLP; prints their median held-out errors
+and writes, into DIR: ``learn.json`` (the models, their held-out errors, the
+rows, provenance), ``errors.csv`` (each row's error under each model),
+``hybrid.eqx`` and ``residual.eqx`` (the trained hybrids,
 `diffimpact.load_model`).  Nothing in DIR is overwritten without ``--force``.
 """
 
@@ -24,6 +27,8 @@ from ._files import number, open_new, writable_folder
 from ._outputs import provenance
 
 _OUTPUT_FILES = ("learn.json", "errors.csv", "hybrid.eqx")
+_RESIDUAL_FILE = "residual.eqx"
+_VELOCITIES = ("velocity_x_after", "velocity_y_after", "angular_velocity")
 # The rigid law's parameters (`diffimpact.RigidContact`, Coulomb's mu);
 # tangential_cor switches on its tangential restitution (Walton's rule).
 LEARNABLE = ("cor", "mu", "tangential_cor")
@@ -55,6 +60,19 @@ def register(sub) -> None:
         "comma-separated features "
         f"(default: {', '.join(DEFAULT_FEATURES)}); repeat for several "
         "(default: cor and mu)",
+    )
+    p.add_argument(
+        "--no-residual",
+        action="store_true",
+        help="skip the hybrid plus a learned correction of its outputs "
+        "(residual physics: for what no parameter of the law expresses)",
+    )
+    p.add_argument(
+        "--residual-features",
+        default=None,
+        metavar="FEATURES",
+        help="comma-separated features of the residual (default: the file's "
+        "inputs, as the network reads them)",
     )
     p.add_argument(
         "--restitution",
@@ -107,6 +125,18 @@ def _parse_learn(items) -> dict:
     return learned
 
 
+def _residual_features(given, data) -> tuple[str, ...]:
+    if given is None:
+        return tuple(data.inputs)
+    features = tuple(f.strip() for f in given.split(",") if f.strip())
+    if not features:
+        raise ValueError(
+            f"--residual-features {given!r}: give comma-separated features, e.g. "
+            "orientation,velocity_x,normal_speed"
+        )
+    return features
+
+
 def _json_number(x: float):
     """A number for strict JSON: inf (every row failed) as null."""
     return x if x == x and abs(x) != float("inf") else None
@@ -121,7 +151,10 @@ def run(args) -> int:
     if os.path.exists(out) and not os.path.isdir(out):
         raise ValueError(f"--out {out}: is a file, not a folder")
     learn = _parse_learn(args.learn)
-    existing = [f for f in _OUTPUT_FILES if os.path.exists(os.path.join(out, f))]
+    if args.residual_features is not None and args.no_residual:
+        raise ValueError("--residual-features and --no-residual contradict each other")
+    files = _OUTPUT_FILES + (() if args.no_residual else (_RESIDUAL_FILE,))
+    existing = [f for f in files if os.path.exists(os.path.join(out, f))]
     if existing and not args.force:
         raise ValueError(
             f"--out {out}: {', '.join(existing)} already exist; pass --force to "
@@ -161,6 +194,16 @@ def run(args) -> int:
         "physics, constant": di.Hybrid(experiment, physics),
         "hybrid": di.Hybrid(experiment, learned),
     }
+    if not args.no_residual:
+        features = _residual_features(args.residual_features, data)
+        # the body's velocities after that the file measures (all three when
+        # it measures none of them: the residual's default)
+        outputs = tuple(q for q in _VELOCITIES if q in data.outputs) or None
+        models["hybrid + residual"] = di.Hybrid(
+            experiment,
+            learned,
+            residual=di.Residual(features, outputs, seed=args.seed),
+        )
     if not args.no_network:
         models["network"] = di.VelocityNetwork(
             experiment, list(data.inputs), list(data.outputs), seed=args.seed
@@ -222,6 +265,12 @@ def _learn_and_write(args, data, experiment, models, train, test, out) -> int:
             p: {"features": list(f.features), "kind": f.kind}
             for p, f in hybrid.model.learned.items()
         },
+        "residual": None
+        if "hybrid + residual" not in results
+        else {
+            "features": list(results["hybrid + residual"].model.residual.features),
+            "outputs": list(results["hybrid + residual"].model.residual.outputs),
+        },
         "error": "median relative error of the velocities after, kinetic norm",
         "held_out_median_error": {
             m: _json_number(r.median_error(test)) for m, r in results.items()
@@ -241,5 +290,12 @@ def _learn_and_write(args, data, experiment, models, train, test, out) -> int:
     if args.force and os.path.exists(path):
         os.remove(path)
     di.save_model(path, hybrid.model)
-    print(f"wrote {out}/: {', '.join(_OUTPUT_FILES)}")
+    written = list(_OUTPUT_FILES)
+    if "hybrid + residual" in results:
+        path = os.path.join(out, _RESIDUAL_FILE)
+        if args.force and os.path.exists(path):
+            os.remove(path)
+        di.save_model(path, results["hybrid + residual"].model)
+        written.append(_RESIDUAL_FILE)
+    print(f"wrote {out}/: {', '.join(written)}")
     return 0

@@ -205,11 +205,12 @@ def load_model(path, like):
         header.pop("format")
         expected = _describe(like)
         if header != expected:
-            diff = sorted(k for k in expected if header.get(k) != expected[k])
+            keys = set(expected) | set(header)
+            diff = sorted(k for k in keys if header.get(k) != expected.get(k))
             shown = [k for k in diff if k != "structure"]
             if shown:
                 saved = {k: header.get(k) for k in shown}
-                want = {k: expected[k] for k in shown}
+                want = {k: expected.get(k) for k in shown}
                 detail = f": saved {saved}, like {want}"
             else:
                 detail = (

@@ -10,6 +10,9 @@ squared correction of the learned functions (`Hybrid.penalty`), ``lambda``
 relative to the loss of the untrained model (so the same values suit any
 file).  Among the ``regularisation`` values given, the one with the lowest
 validation loss is kept; so is the step with the lowest validation loss.
+A hybrid with a `Residual` is trained in two stages: its learned parameters
+first (the residual at zero), then everything from there; the first stage
+is kept where the second does not lower the validation loss.
 """
 
 from __future__ import annotations
@@ -181,19 +184,20 @@ def _rows_of_np(inputs):
     return {q: jnp.asarray(v) for q, v in inputs.items()}
 
 
-def _has_penalty(model) -> bool:
+def _has_penalty(model, residual: bool = True) -> bool:
     """Whether the regularisation weighs anything: a learned function that
-    is not a constant."""
+    is not a constant, or (``residual``) a residual."""
     return isinstance(model, Hybrid) and (
-        model.residual is not None
+        (residual and model.residual is not None)
         or any(fn.correction is not None for fn in model.learned.values())
     )
 
 
-def _trainable(model):
+def _trainable(model, residual: bool = True):
     """The filter of what training moves: the learned functions' constants
-    and corrections and the residual's weights (never the experiment's other
-    numbers, nor any scaling); all of a network's weights."""
+    and corrections and (``residual``) the residual's weights (never the
+    experiment's other numbers, nor any scaling); all of a network's
+    weights."""
     spec = jax.tree.map(lambda _: False, model)
     if isinstance(model, VelocityNetwork):
         return eqx.tree_at(
@@ -209,7 +213,7 @@ def _trainable(model):
         for p, fn in model.learned.items()
     }
     spec = eqx.tree_at(lambda m: m.learned, spec, learned)
-    if model.residual is not None:
+    if residual and model.residual is not None:
         spec = eqx.tree_at(
             lambda m: m.residual.correction,
             spec,
@@ -326,21 +330,24 @@ def train(
         lambdas = lambdas[:1]  # nothing to choose on, or nothing it weighs
     if np.any(lambdas < 0) or not np.all(np.isfinite(lambdas)):
         raise ValueError(f"regularisation must be >= 0, got {regularisation}")
-    best = None
-    losses = {}
-    for lam in lambdas:
-        out = _train_one(
-            model,
-            train_batch,
-            val_batch,
-            quantities,
-            scale,
-            float(lam) * loss0,
-            (steps, learning_rate, patience, check_every),
-        )
-        losses[float(lam)] = out[1]
-        if best is None or out[1] < best[1]:
-            best = (*out, float(lam))
+    settings = (steps, learning_rate, patience, check_every)
+    batches = (train_batch, val_batch, quantities, scale, loss0, settings)
+    first = None
+    if isinstance(model, Hybrid) and model.residual is not None and model.learned:
+        # Residual physics learns what the physics cannot: the learned
+        # parameters first, to convergence, with the residual at zero; then
+        # everything from there, the first stage kept if the second does not
+        # beat it on the validation rows.  Trained together from the start,
+        # the residual's fit of noise ends the training (early stopping)
+        # before the parameters have converged: 275 steps and 0.0262
+        # held-out on the ellipse file, against 3,000 and 0.0232 without it.
+        spec = _trainable(model, residual=False)
+        first_lambdas = lambdas if _has_penalty(model, residual=False) else lambdas[:1]
+        first, _ = _choose(model, spec, first_lambdas, *batches)
+        model = first[0]
+    best, losses = _choose(model, _trainable(model), lambdas, *batches)
+    if first is not None and first[1] <= best[1]:
+        best = first
     trained, best_loss, n_steps, history, lam = best
     if not np.isfinite(best_loss):
         raise RuntimeError(
@@ -459,9 +466,32 @@ def _row_weights(data, quantities, idx, scale, per_row):
     return jnp.asarray(np.stack(cols, axis=1))
 
 
-def _train_one(model, train_batch, val_batch, quantities, scale, lam, settings):
+def _choose(model, spec, lambdas, train_batch, val_batch, quantities, scale, loss0,
+            settings):  # fmt: skip
+    """Train the parts of ``model`` that ``spec`` marks with each ``lambda``
+    (relative to ``loss0``); ``((model, validation loss, steps, history,
+    lambda) of the best, {lambda: its validation loss})``."""
+    best, losses = None, {}
+    for lam in lambdas:
+        out = _train_one(
+            model,
+            spec,
+            train_batch,
+            val_batch,
+            quantities,
+            scale,
+            float(lam) * loss0,
+            settings,
+        )
+        losses[float(lam)] = out[1]
+        if best is None or out[1] < best[1]:
+            best = (*out, float(lam))
+    return best, losses
+
+
+def _train_one(model, spec, train_batch, val_batch, quantities, scale, lam, settings):
     steps, learning_rate, patience, check_every = settings
-    params, static = eqx.partition(model, _trainable(model))
+    params, static = eqx.partition(model, spec)
     # Strongly typed from the start: a weakly typed number (a constant made
     # from a Python float) turns strong after the first update, and the
     # loop would be compiled again for it.
