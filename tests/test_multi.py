@@ -309,15 +309,15 @@ def test_clearance_rattles_with_impact_peaks(rigid, rattling):
     assert 1.5 < speed[-1] < float(sc.motor_speed)
 
 
-def test_zero_clearance_and_the_rattle_over_a_fifth_of_a_second(rattling):
-    """The default tier's twin of the two tests above, over the first 0.2 s:
-    without clearance the piston follows the closed form to 1e-6 of the
-    stroke (measured 6.2e-7) in one contact that never opens, and a 1000
-    times stiffer joint brings that error below 3 % of it (measured 1.0 %);
-    with the 0.03 mm clearance the peaks of that time exceed the rigid
-    mechanism's joint force 10 times over (measured 34 times), and over the
-    whole second the motor work balances kinetic energy, contact and
-    friction losses to 1e-6 (measured 3.3e-16) under the source's motor
+def test_zero_clearance_and_the_rattle_over_a_fifth_of_a_second():
+    """The default tier's twin of the two tests above, over the first 0.2 s
+    (one compiled program for the three runs): without clearance the piston
+    follows the closed form to 1e-6 of the stroke (measured 6.2e-7) in one
+    contact that never opens, and a 1000 times stiffer joint brings that
+    error below 3 % of it (measured 1.0 %); with the 0.03 mm clearance the
+    impact peaks exceed the rigid mechanism's joint force 10 times over
+    (measured 34 times), and the motor work balances kinetic energy, contact
+    and friction losses to 1e-6 (measured 2.7e-15) under the source's motor
     law."""
     sc, r = crank_run(0.2, clearance=0.0)
     _, stiff = crank_run(0.2, clearance=0.0, stiffness_factor=1e3)
@@ -331,11 +331,11 @@ def test_zero_clearance_and_the_rattle_over_a_fifth_of_a_second(rattling):
     assert error(r) / stroke < 1e-6
     assert int(r.impacts.count) == 1
     assert error(stiff) < 0.03 * error(r)
-    _, rattle = rattling
+    _, rattle = crank_run(0.2)
     im = rattle.impacts
-    early = np.asarray(im.start[: int(im.count)]) < 0.2
+    assert int(im.count) >= 2
     rigid_force = valid(r.steps, r.steps.outputs["joint_force"]).max()
-    peak = float(np.max(np.asarray(im.peak_force[: int(im.count)])[early]))
+    peak = float(np.max(np.asarray(im.peak_force[: int(im.count)])))
     assert peak > 10.0 * rigid_force
     balance = (
         rattle.applied_work

@@ -232,6 +232,11 @@ def _learn_and_write(args, data, experiment, models, train, test, out) -> int:
 
     results, errors = {}, {}
     for name, model in models.items():
+        if name == "hybrid + residual":
+            # From the trained hybrid: `train`'s first stage (the parameters,
+            # the residual at zero) then starts where that training ended.
+            hybrid = results["hybrid"].model
+            model = di.Hybrid(hybrid.experiment, hybrid.learned, model.residual)
         print(f"training {name} on {len(train)} rows...", flush=True)
         t0 = time.perf_counter()
         r = di.train(model, data, rows=train, seed=args.seed)
