@@ -102,7 +102,8 @@ def test_posterior_matches_a_grid_posterior(data):
     ~15 % wide), so the posterior is neither of them nor Gaussian.  Measured
     (seed 0): mean 0.02 sd off, sd 0.1 % off, quantiles within 0.02 sd; the
     bounds allow the Monte-Carlo error of ~1,000 effective draws (a mean's is
-    0.03 sd, a 5 % quantile's ~0.07 sd)."""
+    0.03 sd, a 5 % quantile's ~0.07 sd).  A second run with the same seed
+    gives the same draws, bit for bit."""
     path, measured, sigma = data
     r = di.posterior(
         path, experiment(), free=["youngs_modulus"],
@@ -141,3 +142,10 @@ def test_posterior_matches_a_grid_posterior(data):
     )
     ll = pp["log_likelihood_draws"]
     np.testing.assert_allclose(ll, expect, rtol=3e-9)
+    # the same seed gives the same draws, bit for bit
+    again = di.posterior(
+        path, experiment(), free=["youngs_modulus"],
+        priors={"youngs_modulus": PRIOR}, num_samples=1000, num_warmup=300,
+        num_chains=2, seed=0,
+    )  # fmt: skip
+    np.testing.assert_array_equal(np.asarray(again.samples), np.asarray(r.samples))

@@ -74,6 +74,11 @@ def feature_values(experiment: Experiment, names) -> Array:
     return jnp.stack(out)
 
 
+def feature_names(features) -> tuple[str, ...]:
+    """Feature names as a tuple (one name may be given as a string)."""
+    return (features,) if isinstance(features, str) else tuple(features)
+
+
 def feature_width(names) -> int:
     return sum(2 if n == "orientation" else 1 for n in names)
 

@@ -45,6 +45,7 @@ from ._experiment import (
 )
 from ._features import (
     available_features,
+    feature_names,
     feature_values,
     feature_width,
 )
@@ -159,9 +160,7 @@ class Learned(eqx.Module):
         degree: int = 2,
         seed: int = 0,
     ):
-        if isinstance(features, str):
-            features = (features,)
-        self.features = tuple(features)
+        self.features = feature_names(features)
         if kind is None:
             kind = "mlp" if self.features else "constant"
         if kind not in KINDS:

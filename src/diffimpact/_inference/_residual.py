@@ -35,7 +35,7 @@ import jax.random as jr
 from jaxtyping import Array
 
 from ._corrections import Polynomial, _Network
-from ._features import feature_width
+from ._features import feature_names, feature_width
 
 KINDS = ("mlp", "polynomial")
 
@@ -81,9 +81,7 @@ class Residual(eqx.Module):
         degree: int = 2,
         seed: int = 0,
     ):
-        if isinstance(features, str):
-            features = (features,)
-        self.features = tuple(features)
+        self.features = feature_names(features)
         if not self.features:
             raise ValueError(
                 "Residual needs at least one feature (e.g. features=("
