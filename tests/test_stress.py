@@ -1,6 +1,7 @@
 """Numerical stress tests (issue 6): >= 2,000 random impacts across scenes.
 
-The normal-impact grids (2,000 combinations with float32) run by default; the
+The normal-impact grids (2,000 combinations with float32) run in the long
+tier (``pytest -m extended``; tests/extended.txt lists them); the
 friction-scene grids (220 more, about 30 s on 2 cores) are marked
 ``stress`` and run with ``pytest -m stress``.
 
