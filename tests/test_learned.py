@@ -615,6 +615,9 @@ def test_bad_residual_input_is_named(offset):
     h = di.Hybrid(rigid, {}, residual=di.Residual(("orientation",), ("rebound",)))
     with pytest.raises(ValueError, match="residual: output\\(s\\) \\['rebound'\\]"):
         h.predict({q: v[0] for q, v in d.inputs.items()})
+    h = di.Hybrid(rigid, {}, residual=di.Residual(("orientation",), ("result",)))
+    with pytest.raises(ValueError, match="residual: output\\(s\\) \\['result'\\]"):
+        h.predict({q: v[0] for q, v in d.inputs.items()})
     sphere = di.Experiment(
         di.scenes.NormalImpact(
             1e-3, 5e-3, di.Material(200e9, 0.3), di.Material(200e9, 0.3), velocity=1.0

@@ -381,7 +381,7 @@ class Hybrid(eqx.Module):
         out = predict(self.experiment_at(inputs), {}, throw=throw)
         if self.residual is None:
             return out
-        missing = [q for q in self.residual.outputs if q not in out]
+        missing = [q for q in self.residual.outputs if q not in out or q == "result"]
         if missing:
             raise ValueError(
                 f"residual: output(s) {missing} are not predicted by the "
