@@ -73,8 +73,6 @@ EXTENDED_ONLY = {
     "tests/test_flexible_bar.py::test_the_stiff_limit_is_the_rigid_bar",
     "tests/test_jackson_green.py::test_switch_band",
     "tests/test_layer.py::test_jacfwd_through_the_ode_with_forward_mode_adjoint",
-    "tests/test_layer.py::test_second_derivative_of_the_quadrature_path",
-    "tests/test_layer.py::test_vmap_of_grad_equals_grad_of_vmap",
     "tests/test_line_contact.py::test_gradients_match_central_differences",
     "tests/test_link.py::test_gradients_match_central_differences",
     "tests/test_multi.py::test_alternative_laws_first_rebound",
