@@ -343,13 +343,17 @@ class Hybrid(eqx.Module):
         x = self.features(inputs)
         return {p: fn(x[p]) for p, fn in self.learned.items()}
 
+    def residual_features(self, inputs: dict):
+        """The residual's feature vector at one row's ``inputs``."""
+        e = with_inputs(self.experiment, inputs)
+        return feature_values(e, self.residual.features)
+
     def correction(self, inputs: dict) -> dict:
         """The residual's correction of each output at one row's ``inputs``
         (quantity -> SI value; empty without a residual)."""
         if self.residual is None:
             return {}
-        e = with_inputs(self.experiment, inputs)
-        dy = self.residual(feature_values(e, self.residual.features))
+        dy = self.residual(self.residual_features(inputs))
         return dict(zip(self.residual.outputs, dy, strict=True))
 
     def experiment_at(self, inputs: dict) -> Experiment:
@@ -401,8 +405,7 @@ class Hybrid(eqx.Module):
             (fn.deviation(x[p]) ** 2 for p, fn in self.learned.items()), jnp.zeros(())
         )
         if self.residual is not None:
-            e = with_inputs(self.experiment, inputs)
-            f = self.residual.deviation(feature_values(e, self.residual.features))
+            f = self.residual.deviation(self.residual_features(inputs))
             total = total + jnp.sum(f**2)
         return total
 
@@ -417,9 +420,7 @@ class Hybrid(eqx.Module):
         if self.residual is None:
             return out
         r = self.residual
-        xr = jax.vmap(
-            lambda row: feature_values(with_inputs(self.experiment, row), r.features)
-        )(rows)
+        xr = jax.vmap(self.residual_features)(rows)
         y = None
         if outputs is not None and all(q in outputs for q in r.outputs):
             y = jnp.stack([jnp.asarray(outputs[q]) for q in r.outputs], axis=1)
