@@ -71,8 +71,6 @@ EXTENDED_ONLY = {
     "tests/test_flexible_bar.py::test_gradient_through_the_modes",
     "tests/test_flexible_bar.py::test_impulse_criterion_on_the_rigid_bar",
     "tests/test_flexible_bar.py::test_the_stiff_limit_is_the_rigid_bar",
-    "tests/test_jackson_green.py::test_switch_band",
-    "tests/test_layer.py::test_jacfwd_through_the_ode_with_forward_mode_adjoint",
     "tests/test_line_contact.py::test_gradients_match_central_differences",
     "tests/test_link.py::test_gradients_match_central_differences",
     "tests/test_multi.py::test_alternative_laws_first_rebound",
@@ -90,12 +88,8 @@ EXTENDED_ONLY = {
     "tests/test_slip.py::test_critical_angle_ball",
     "tests/test_slip.py::test_f2_gradients",
     "tests/test_slip.py::test_mu_gradient_across_the_sliding_sticking_switch",
-    "tests/test_slip.py::test_stick_law_is_an_explicit_choice",
     "tests/test_stress.py::test_link_and_bar_with_friction",
-    "tests/test_stress.py::test_normal_impacts",
-    "tests/test_stress.py::test_normal_impacts_float32",
     "tests/test_stress.py::test_sphere_on_incline_with_friction",
-    "tests/test_sweep.py::test_gradient_through_a_sweep_matches_central_differences",
     "tests/test_tangential.py::test_exact_gradients_match_ode",
 }
 

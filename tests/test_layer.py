@@ -76,9 +76,11 @@ def test_jacfwd_through_the_ode_with_forward_mode_adjoint():
     def f(x, s):
         return cor(x[0], x[1], "smooth", s)
 
+    # jitted: run eagerly, every operation around the solve is dispatched
+    # (and its pieces compiled) one by one
     np.testing.assert_allclose(
-        jax.jacfwd(lambda x: f(x, fwd))(x),
-        jax.grad(lambda x: f(x, di.SolverSettings()))(x),
+        jax.jit(jax.jacfwd(lambda x: f(x, fwd)))(x),
+        jax.jit(jax.grad(lambda x: f(x, di.SolverSettings())))(x),
         rtol=9e-6,
     )
 
