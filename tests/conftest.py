@@ -69,6 +69,18 @@ def rel(a, b):
     return np.abs(a - b) / np.abs(b)
 
 
+def grad_and_central_difference(f, x, h, differenced=None):
+    """``(df/dx, central difference)`` at the scalar ``x``, step ``h``: the
+    gradient by ``jax.grad`` of ``f``, the difference of ``differenced``
+    (default ``f``; e.g. the same quantity from a tighter solve).  Both
+    jitted, the two differenced solves in one vmapped program: run eagerly,
+    every operation around a solve is dispatched (and its pieces compiled)
+    one by one."""
+    g = float(jax.jit(jax.grad(f))(x))
+    up, down = jax.jit(jax.vmap(differenced or f))(jnp.array([x + h, x - h]))
+    return g, float(up - down) / (2 * h)
+
+
 def assert_grad_matches_fd(f, p0, reference, tol=1e-5, step=1e-4):
     """``jax.grad(f)(p0)`` (default settings) against central differences of
     ``f(p, reference)`` (reference settings), relative step ``step`` each.

@@ -8,7 +8,7 @@ import equinox as eqx
 import jax
 import jax.numpy as jnp
 import pytest
-from conftest import rel
+from conftest import grad_and_central_difference, rel
 
 import diffimpact as di
 from diffimpact._solve import _normal as _normal_solve
@@ -100,12 +100,8 @@ def _mu_gradient(law, mu=0.05):
         r = di.simulate(scene(45.0), law, friction=di.Friction(mu), settings=settings)
         return r.extras["tangential_velocity_after"]
 
-    # jitted: one program for the gradient, one for both differenced solves
-    g = jax.jit(jax.grad(v_t))(mu)
     tight = di.SolverSettings(rtol=1e-13, atol=1e-15)
-    h = 1e-4
-    up, down = jax.jit(jax.vmap(lambda m: v_t(m, tight)))(jnp.array([mu + h, mu - h]))
-    return g, (up - down) / (2 * h)
+    return grad_and_central_difference(v_t, mu, 1e-4, lambda m: v_t(m, tight))
 
 
 def test_friction_gradient_matches_routh_derivative():

@@ -107,8 +107,8 @@ def test_restitution_starts_at_peak_force():
 CONTINUOUS = di.JacksonGreen(continuous=True)
 
 
-def _across_the_switch(speeds, method, reference, settings=di.SolverSettings()):
-    """``method`` against ``reference`` (settings TIGHT) for the `continuous`
+def _across_the_switch(speeds, method, reference):
+    """``method`` (default settings) against ``reference`` (TIGHT) for the `continuous`
     law at ``speeds`` that straddle d* = 1.9 (S_y = 1 GPa), every field to
     1e-5."""
 
@@ -116,7 +116,7 @@ def _across_the_switch(speeds, method, reference, settings=di.SolverSettings()):
         return di.simulate(sphere(v, 1e9), CONTINUOUS, method, settings=st)
 
     ref = jax.vmap(lambda v: run(v, reference, TIGHT))(speeds)
-    out = jax.vmap(lambda v: run(v, method, settings))(speeds)
+    out = jax.vmap(lambda v: run(v, method, di.SolverSettings()))(speeds)
     d_star = np.asarray(ref.max_deflection) / float(
         CONTINUOUS.bind(sphere(1.0, 1e9).normal_problem().contact, 1.0).d_c
     )

@@ -30,8 +30,8 @@ DENSITY = 7850.0
 KNOWN = ("outside the contact model", "step budget", "never separate")
 
 
-def loguniform(lo, hi, n):
-    return np.exp(RNG.uniform(math.log(lo), math.log(hi), n))
+def loguniform(lo, hi, n, rng=RNG):
+    return np.exp(rng.uniform(math.log(lo), math.log(hi), n))
 
 
 def run_chunks(fn, arrays, chunk=100):
@@ -74,23 +74,18 @@ def sphere(mass):
     return (3.0 * mass / (4.0 * math.pi * DENSITY)) ** (1.0 / 3.0)
 
 
-def normal_inputs(n, dtype=np.float64, rng=None):
+def normal_inputs(n, dtype, rng):
     """Speed, modulus, mass and yield strength of ``n`` random impacts, drawn
-    from ``rng`` (default: the module's generator)."""
-    rng = RNG if rng is None else rng
-
-    def log_uniform(lo, hi):
-        return np.exp(rng.uniform(math.log(lo), math.log(hi), n))
-
-    v = log_uniform(1e-4, 100.0)
-    e = log_uniform(1e6, 1e12)
-    m = log_uniform(1e-6, 1e3)
+    from ``rng``."""
+    v = loguniform(1e-4, 100.0, n, rng)
+    e = loguniform(1e6, 1e12, n, rng)
+    m = loguniform(1e-6, 1e3, n, rng)
     # Yield strength from far below to far above the Hertz contact pressure.
     e_star = e / (2.0 * (1.0 - 0.3**2))
     r = sphere(m)
     d = (15.0 * m * v**2 / (16.0 * e_star * np.sqrt(r))) ** 0.4
     p0 = 2.0 / math.pi * e_star * np.sqrt(d / r)
-    s_y = p0 * log_uniform(1e-3, 1e3)
+    s_y = p0 * loguniform(1e-3, 1e3, n, rng)
     return [np.asarray(a, dtype) for a in (v, e, m, s_y)]
 
 
@@ -127,7 +122,7 @@ def check_normal(good, v, m, tol):
 )
 def test_normal_impacts(method, n, tol, seed):
     rng = np.random.default_rng([20261122, seed])
-    v, e, m, s_y = normal_inputs(n, rng=rng)
+    v, e, m, s_y = normal_inputs(n, np.float64, rng)
     good, errors = run_chunks(lambda *a: normal_impact(*a, method), [v, e, m, s_y])
     report(f"normal JG ({method})", n, good, errors)
     check_normal(good, v, m, tol)
