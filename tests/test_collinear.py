@@ -3,6 +3,7 @@ damping calibration of the dissipative laws."""
 
 import jax
 import jax.numpy as jnp
+import numpy as np
 import pytest
 from conftest import rel, steel
 
@@ -87,29 +88,48 @@ def test_calibration_independent_of_scene():
         assert abs(float(di.simulate(sc, law).cor_newton) - 0.5) < 1e-7
 
 
+def test_calibrated_damping_restitutes_exactly_for_any_exponent():
+    """The calibrated damping (the root of the restitution relation, not a
+    solve) against the impact itself: a gravity-free normal impact under
+    ``K d^n (1 + D d_dot)`` with ``D = damping_ratio(e) / v0`` restitutes with
+    exactly ``e``, for any exponent (the relation does not contain ``n``:
+    1, 1.5 and 2.5 here) and ``e`` from 0.05 to 0.999.  Measured at the
+    default rtol 1e-11: within 9.4e-11 (the solve's own error)."""
+    mat = steel(jnp.inf)
+    cors, exponents = np.meshgrid([0.05, 0.3, 0.7, 0.95, 0.999], [1.0, 1.5, 2.5])
+
+    def cor_newton(e, n):
+        law = di.HuntCrossley(cor=e, exponent=n, calibrated=True)
+        sc = di.scenes.NormalImpact(0.1, 0.01, mat, mat, velocity=1.0, gravity=0.0)
+        return di.simulate(sc, law).cor_newton
+
+    got = jax.jit(jax.vmap(cor_newton))(cors.ravel(), exponents.ravel())
+    np.testing.assert_allclose(np.asarray(got), cors.ravel(), rtol=0, atol=1e-9)
+
+
 def test_damping_ratio_gradient():
-    """Implicit derivative of the calibrated damping against central differences
-    of the (tightly converged) root itself."""
-    # Arrays, not Python floats: one compiled root solve serves every call.
-    # One program for the gradient, one for the four differenced roots.
-    e, n = jnp.asarray(0.7), jnp.asarray(1.5)
-    g = jax.jit(jax.grad(di.damping_ratio, argnums=(0, 1)))(e, n)
-    h = 1e-5
-    z = jax.jit(jax.vmap(di.damping_ratio))(
-        jnp.array([e + h, e - h, e, e]), jnp.array([n, n, n + h, n - h])
-    )
-    fd_e = (z[0] - z[1]) / (2 * h)
-    fd_n = (z[2] - z[3]) / (2 * h)
-    assert rel(g[0], fd_e) < 4e-9
-    # With z = x^(n+1) the dimensionless equation becomes du/dz = -(1 + zeta u)
-    # / (2u): the COR depends on zeta alone, so d zeta / d n = 0.
-    assert abs(float(g[1])) < 1e-7 * abs(float(g[0]))
-    assert abs(float(fd_n)) < 1e-7 * abs(float(fd_e))
+    """Implicit derivative of the calibrated damping against central
+    differences of the converged root (h = 1e-6: the root is exact to a few
+    ulp, so the differences carry ~1e-10 of rounding); exactly zero with
+    respect to the exponent.  Measured 6e-10 (e 0.1 to 0.999)."""
+    e = jnp.array([0.1, 0.5, 0.7, 0.9, 0.999])
+    n = jnp.full_like(e, 1.5)
+    g = jax.jit(jax.vmap(jax.grad(di.damping_ratio, argnums=(0, 1))))(e, n)
+    h = 1e-6
+    z = jax.jit(jax.vmap(di.damping_ratio))(jnp.concatenate([e + h, e - h]))
+    fd = (z[:5] - z[5:]) / (2 * h)
+    np.testing.assert_allclose(np.asarray(g[0]), np.asarray(fd), rtol=5e-9)
+    assert np.all(np.asarray(g[1]) == 0.0)
     assert float(di.damping_ratio(1.0)) == 0.0
+    assert float(jax.grad(di.damping_ratio)(1.0)) == -1.5
 
 
 def test_gradient_through_calibrated_law():
-    """d w1 / d e through the calibration equals the analytic -M2 (V1-V2)/(M1+M2)."""
+    """d w1 / d e through the calibration equals the analytic -M2 (V1-V2)/(M1+M2).
+    The calibration's derivative is exact (the restitution relation's); what
+    remains is the derivative of the solve at the default rtol 1e-11:
+    measured 1.2e-7.  (While the damping was calibrated on the same
+    discretised solve, the two derivatives' errors cancelled to 8.6e-9.)"""
 
     def w1(e):
         return di.simulate(scene(), di.HuntCrossley(cor=e, calibrated=True)).extras[
@@ -117,7 +137,7 @@ def test_gradient_through_calibrated_law():
         ]
 
     g = jax.jit(jax.grad(w1))(0.7)
-    assert rel(g, -M2 * (V1 - V2) / (M1 + M2)) < 8e-8
+    assert rel(g, -M2 * (V1 - V2) / (M1 + M2)) < 1e-6
 
 
 def test_collinear_needs_approach():

@@ -59,8 +59,6 @@ EXTENDED_ONLY = {
     "tests/test_body_data.py::test_compliant_data_is_fitted_and_beats_the_rigid_laws",
     "tests/test_body_data.py::test_diverging_sensitivities_are_named",
     "tests/test_cli_fit.py::test_fit_holdout_compares_the_model_with_the_rigid_laws",
-    "tests/test_collinear.py::test_damping_ratio_gradient",
-    "tests/test_collinear.py::test_gradient_through_calibrated_law",
     "tests/test_extending.py::test_user_law_simulates_differentiates_and_fits",
     "tests/test_extending.py::test_user_planar_body_fits_from_a_file",
     "tests/test_fit.py::test_ball_prism_real_data",

@@ -1,7 +1,7 @@
 """Scalar Newton root with implicit (custom_jvp) derivatives.
 
 Used for the maximum compression ``d_m`` of the energy balance (quadrature path,
-elastic laws) and for the damping calibration.  The derivative comes from the
+elastic laws).  The derivative comes from the
 implicit function theorem, ``dx/dtheta = -(df/dtheta)/(df/dx)`` at the root, so
 it is exact whatever the number of iterations, works in forward and reverse
 mode (custom_jvp transposes), and never differentiates through the loop.
@@ -12,7 +12,7 @@ quadrature path (10,000 roots, vmapped, float64, 2-core CPU) it takes 9.3 ms
 against 1.5 ms here (6.2x; one root 6.4 against 5.9 us), for the same roots
 (2e-16) and gradients (9e-16); and its Newton differentiates ``fn`` in forward
 mode, which a ``fn`` holding a diffrax solve with the default (reverse-only)
-adjoint does not support (`diffimpact.damping_ratio`).
+adjoint does not support.
 """
 
 from __future__ import annotations
