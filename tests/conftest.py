@@ -117,37 +117,21 @@ def sharp_reference():
     return sys.modules[name]
 
 
-def _memory_maps() -> int | None:
-    """How many memory maps this process holds (Linux), else None."""
-    try:
-        with open("/proc/self/maps", "rb") as maps:
-            return sum(1 for _ in maps)
-    except OSError:
-        return None
-
-
-# A third of the kernel's default vm.max_map_count (65,530).
-_MAPS_BEFORE_RELEASE = 20_000
-
-
 @pytest.fixture(autouse=True, scope="module")
 def _release_compiled_programs():
-    """Drop JAX's in-memory caches after a test module once the worker holds
-    many memory maps.  A worker compiles thousands of programs (eager
-    operations included), each XLA CPU executable holds a few memory maps (4
-    for a tiny one, measured), and a process near the kernel's limit
-    (vm.max_map_count, 65,530 by default) crashes inside the compiler: seen
-    three times as a segfault in backend_compile late in a quiet fresh-clone
-    run.  Until then the caches stay: a later module that builds the same
-    program (the same scene, law and settings through `simulate`, say) takes
-    it from memory, traced and compiled, where the persistent cache cannot
-    help (a program with a host callback, as every traced input check has,
-    is keyed there by the callback's address, and so never found again).
-    Where the count cannot be read, every module releases."""
+    """Drop JAX's in-memory caches after each test module.  A worker compiles
+    thousands of programs (eager operations included), each XLA CPU
+    executable holds a few memory maps (4 for a tiny one, measured), and a
+    process near the kernel's limit (vm.max_map_count, 65,530 by default)
+    crashes inside the compiler: seen three times as a segfault in
+    backend_compile late in a quiet fresh-clone run.  What a later module
+    needs again is loaded from the persistent cache.  Keeping the caches
+    until a worker held 20,000 maps (tried 2026-11-29) made the default tier
+    slower, 13:19 against 12:11: the tests of many eager operations (the
+    stress grids' chunks, the docs' code blocks) ran 40-60 % longer beside
+    the larger caches."""
     yield
-    maps = _memory_maps()
-    if maps is None or maps > _MAPS_BEFORE_RELEASE:
-        jax.clear_caches()
+    jax.clear_caches()
 
 
 _EXTENDED = pathlib.Path(__file__).with_name("extended.txt")
