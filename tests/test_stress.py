@@ -8,10 +8,12 @@ default; the link (about 16 s on 2 cores) is marked ``stress`` and runs with
 ``pytest -m stress``.
 
 Every combination either returns finite outputs (and finite gradients) that
-satisfy the energy and momentum balances, or raises one of diffimpact's own
-clear errors.  Combinations run in vmapped chunks; a chunk that raises is
-run again row by row, so each combination that raises is counted with its
-message.  The counts are printed (``pytest -s``) and bounded below.
+satisfy the energy and momentum balances, or reports one of diffimpact's own
+failures.  Combinations run vmapped with ``throw=False``: a failed row's
+outputs are NaN and its `RESULTS` code names the failure, and the first
+failed row of each kind, solved alone with ``throw=True``, raises that
+failure's error and message.  The counts are printed (``pytest -s``) and
+bounded below.
 """
 
 import collections
@@ -26,45 +28,52 @@ import pytest
 import diffimpact as di
 
 DENSITY = 7850.0
-# The messages a combination may legitimately raise, each specific.
-KNOWN = ("outside the contact model", "step budget", "never separate")
+# The failures a combination may legitimately report (`diffimpact.RESULTS`
+# names), each with its own error and message.
+KNOWN = {
+    "outside_model": (di.OutsideModelError, "outside the contact model"),
+    "max_steps_reached": (di.StepBudgetError, "step budget"),
+    "never_separates": (di.NeverSeparatesError, "never separate"),
+}
 
 
 def loguniform(lo, hi, n, rng):
     return np.exp(rng.uniform(math.log(lo), math.log(hi), n))
 
 
-def run_chunks(fn, arrays, chunk=100):
-    """fn: vmapped over arrays; returns (outputs for the good rows, error counts).
-    A chunk that raises is run again row by row (one compiled program of one
-    row, where bisecting would compile one per chunk size), so each row that
-    raises is counted with its message."""
-    f = eqx.filter_jit(jax.vmap(fn))
+def run_rows(fn, arrays, chunk=500):
+    """``fn(*row, throw=...)`` vmapped over ``arrays`` with ``throw=False``:
+    (the outputs of the solved rows, the count of each failure's `RESULTS`
+    name).  A failed row's floating-point outputs must all be NaN.  The first
+    failed row of each kind is solved again alone with ``throw=True``, which
+    must raise that failure's own error and message."""
+    f = eqx.filter_jit(jax.vmap(lambda *a: fn(*a, throw=False)))
     n = len(arrays[0])
-    good, errors = {}, collections.Counter()
-
-    def attempt(idx):
-        try:
-            out = jax.device_get(f(*(a[idx] for a in arrays)))
-        except Exception as err:  # noqa: BLE001 - classified below
-            if len(idx) == 1:
-                text = str(err)
-                kind = next((k for k in KNOWN if k in text), text[:300])
-                errors[kind] += 1
-                return
-            for i in idx:
-                attempt(np.array([i]))
-            return
-        for j, i in enumerate(idx):
-            good[int(i)] = jax.tree.map(lambda x, j=j: x[j], out)
-
+    good, errors, first = {}, collections.Counter(), {}
     for s in range(0, n, chunk):
-        attempt(np.arange(s, min(s + chunk, n)))
+        out = jax.device_get(f(*(a[s : s + chunk] for a in arrays)))
+        for j, code in enumerate(np.asarray(out.code)):
+            row = jax.tree.map(lambda x, j=j: x[j], out)
+            name = di.result_name(code)
+            if name == "successful":
+                good[s + j] = row
+                continue
+            errors[name] += 1
+            first.setdefault(name, s + j)
+            floats = [
+                x for x in jax.tree.leaves(row) if np.issubdtype(x.dtype, np.floating)
+            ]
+            assert all(np.all(np.isnan(x)) for x in floats), (name, row)
+    for name, i in first.items():
+        if name in KNOWN:  # an unknown one fails in `report`
+            error, message = KNOWN[name]
+            with pytest.raises(error, match=message):
+                fn(*(a[i] for a in arrays), throw=True)
     return good, errors
 
 
 def report(name, n, good, errors):
-    print(f"\n{name}: {n} combinations, {len(good)} solved, raised: {dict(errors)}")
+    print(f"\n{name}: {n} combinations, {len(good)} solved, failed: {dict(errors)}")
     unknown = [k for k in errors if k not in KNOWN]
     assert not unknown, unknown
     assert len(good) >= 0.4 * n  # the grids are built to be mostly in range
@@ -89,12 +98,12 @@ def normal_inputs(n, dtype, rng):
     return [np.asarray(a, dtype) for a in (v, e, m, s_y)]
 
 
-def normal_impact(v, e, m, s_y, method):
+def normal_impact(v, e, m, s_y, method, throw=True):
     body = di.Material(e, 0.3)
     flat = di.Material(e, 0.3, s_y)
     r = jnp.cbrt(3.0 * m / (4.0 * jnp.pi * DENSITY))
     scene = di.scenes.NormalImpact(m, r, body, flat, velocity=v)
-    return di.simulate(scene, di.JacksonGreen(), method)
+    return di.simulate(scene, di.JacksonGreen(), method, throw=throw)
 
 
 def check_normal(good, v, m, tol):
@@ -123,7 +132,9 @@ def check_normal(good, v, m, tol):
 def test_normal_impacts(method, n, tol, seed):
     rng = np.random.default_rng([20261122, seed])
     v, e, m, s_y = normal_inputs(n, np.float64, rng)
-    good, errors = run_chunks(lambda *a: normal_impact(*a, method), [v, e, m, s_y])
+    good, errors = run_rows(
+        lambda *a, throw: normal_impact(*a, method, throw), [v, e, m, s_y]
+    )
     report(f"normal JG ({method})", n, good, errors)
     check_normal(good, v, m, tol)
     # Gradients of the COR and contact time w.r.t. speed, modulus and yield
@@ -159,7 +170,9 @@ def test_normal_impacts_float32(method, n, seed):
     accuracy."""
     rng = np.random.default_rng([20261122, seed])
     v, e, m, s_y = normal_inputs(n, np.float32, rng)
-    good, errors = run_chunks(lambda *a: normal_impact(*a, method), [v, e, m, s_y])
+    good, errors = run_rows(
+        lambda *a, throw: normal_impact(*a, method, throw), [v, e, m, s_y]
+    )
     report(f"normal JG ({method}, float32)", n, good, errors)
     assert all(r.cor_newton.dtype == np.float32 for r in good.values())
     check_normal(good, v.astype(float), m.astype(float), 2e-3)
@@ -189,7 +202,7 @@ def test_sphere_on_incline_with_friction():
     s_y = loguniform(1e8, 1e10, n, rng)
     mass = 4.0 / 3.0 * math.pi * 9.5e-3**3 * DENSITY
 
-    def one(h, phi, mu, s_y):
+    def one(h, phi, mu, s_y, throw):
         sc = di.scenes.SphereOnIncline(
             mass, 9.5e-3, ball, di.Material(205e9, 0.29, s_y), incline=phi, height=h
         )
@@ -198,10 +211,11 @@ def test_sphere_on_incline_with_friction():
             di.JacksonGreen(),
             friction=di.Friction(mu),
             settings=di.SolverSettings(max_steps=16384),
+            throw=throw,
         )
         return r
 
-    good, errors = run_chunks(one, [height, angle, mu, s_y], chunk=20)
+    good, errors = run_rows(one, [height, angle, mu, s_y])
     report("sphere on incline + friction", n, good, errors)
     planar_check(good, 1e-6)
     g = 9.81
@@ -246,7 +260,7 @@ def test_link_and_bar_with_friction(scene, seed):
     mu = rng.uniform(0.0, 2.0, n)
     size = rng.uniform(0.05, 0.5, n)
 
-    def one(phi, mu, size):
+    def one(phi, mu, size, throw):
         if scene == "link":
             mass = DENSITY * math.pi * 0.01**2 / 4.0 * size
             sc = di.scenes.RotatingLink(mass, size, 0.01, steel, flat, impact_angle=phi)
@@ -257,8 +271,9 @@ def test_link_and_bar_with_friction(scene, seed):
             di.JacksonGreen(),
             friction=di.Friction(mu),
             settings=di.SolverSettings(max_steps=16384),
+            throw=throw,
         )
 
-    good, errors = run_chunks(one, [angle, mu, size], chunk=20)
+    good, errors = run_rows(one, [angle, mu, size])
     report(f"{scene} + friction", n, good, errors)
     planar_check(good, 1e-6)
