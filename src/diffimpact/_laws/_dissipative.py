@@ -3,9 +3,10 @@
 The three laws differ only in how they map a target restitution ``e`` to the
 damping factor ``D``; each formula is an approximation derived for a particular
 assumption (small damping, or a particular energy balance), so none reproduces
-``e`` exactly.  With ``calibrated=True`` the damping is instead the root of
-``COR(D v0, n) = e`` computed by the solver (see ``diffimpact.damping_ratio``);
-then all three laws are the same law and give exactly the requested ``e``.
+``e`` exactly.  With ``calibrated=True`` the damping is instead the exact
+root of the restitution relation ``zeta (1 + e) = ln((1 + zeta)/(1 - zeta e))``,
+``zeta = D v0`` (CAL; see ``diffimpact.damping_ratio``); then all three laws
+are the same law and give exactly the requested ``e``.
 """
 
 from __future__ import annotations
