@@ -57,9 +57,9 @@ def _residual(zeta, cor):
     """``psi(zeta) - e^2 psi(-zeta e)`` and its slope: positive below the
     root, decreasing.  Near ``e = 1`` (``zeta`` small) it is a difference of
     nearly equal numbers: there it is summed as ``zeta (1 + e) D + (1 - e^2)
-    psi(-zeta e)``, ``D`` the divided difference of psi's series, which keeps
-    ``1 - e^2`` exact (from ``e^2`` it would carry ~1e-16 absolute, 5e-11 of
-    zeta at e = 1 - 1e-6)."""
+    psi(-zeta e)``, ``D`` the divided difference of psi's series, with
+    ``1 - e^2 = (1 - e)(1 + e)`` to an ulp (from ``e^2`` it would carry
+    ~1e-16 absolute, 5e-11 of zeta at e = 1 - 1e-6)."""
     a, da = _psi(zeta)
     b, db = _psi(-zeta * cor)
     slope = da + cor**3 * db
