@@ -4,7 +4,7 @@ The normal-impact grids (2,000 combinations with float32) run in the long
 tier (``pytest -m extended``; tests/extended.txt lists them) where they
 take the smooth solve; those by quadrature run by default. Of the
 friction-scene grids (220 more), the sphere on an incline and the bar run by
-default; the link (about 16 s on 2 cores) is marked ``stress`` and runs with
+default; the link (about 10 s on 2 cores) is marked ``stress`` and runs with
 ``pytest -m stress``.
 
 Every combination either returns finite outputs (and finite gradients) that
