@@ -187,6 +187,26 @@ def test_table_with_throw_false():
     assert np.isnan(cor[1]) and np.all(np.isfinite(cor[::2]))
 
 
+def test_a_failure_known_when_compiling_still_raises_its_message():
+    """The closed form's traced checks raise from its result check, after
+    the solve (not threaded through its inputs: that cut the program and a
+    single jitted call took 1.6x the time).  A bad value known when the
+    program is compiled (Python floats under filter_jit, a constant closed
+    over by jax.jit) makes the outputs constant NaN; the check must still
+    raise its own message, not return NaN or `invalid_input`'s message."""
+    with pytest.raises(eqx.EquinoxRuntimeError, match=r"poisson_ratio.*got 0\.6\)"):
+        eqx.filter_jit(_head_on)(0.6, True)
+    scene = di.scenes.NormalImpact(
+        M, R, di.Material(208e9, 0.3), di.Material(205e9, 0.3), velocity=1.0
+    )
+    bad = eqx.tree_at(lambda s: s.flat.poisson_ratio, scene, jnp.asarray(0.9))
+    closed_over = jax.jit(lambda: di.simulate(bad, di.Hertz(), "quadrature").cor_newton)
+    with pytest.raises(
+        (jax.errors.JaxRuntimeError, ValueError), match=r"poisson_ratio.*got 0\.9\)"
+    ):
+        jax.block_until_ready(closed_over())
+
+
 def test_throw_false_eagerly_gives_the_code():
     """Eagerly, a value check made by the solve (here on a scene built by
     eqx.tree_at, which skips the constructor) is a code with throw=False,
