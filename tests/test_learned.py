@@ -327,7 +327,7 @@ def test_bad_learned_input_is_named(data):
         di.Hybrid(rigid, {"cor": di.Learned(start=1.5)})
     with pytest.raises(TypeError, match="expected a diffimpact.Learned"):
         di.Hybrid(rigid, {"cor": 0.5})
-    with pytest.raises(ValueError, match="not inputs of scene 'planar_body'"):
+    with pytest.raises(ValueError, match="do not apply to scene 'planar_body'"):
         di.VelocityNetwork(rigid, ("spin",), OUTPUTS)
     bad = di.Hybrid(rigid, {"cor": _OutOfDomain(("normal_speed",), "polynomial")})
     row = {q: v[0] for q, v in d.inputs.items()}

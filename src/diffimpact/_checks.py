@@ -499,6 +499,13 @@ def inputs_guarded():
         _skip_requires -= 1
 
 
+def require_type(value, classes, what: str, *, optional: bool = False) -> None:
+    """``TypeError`` "``what``, got TYPE" unless ``value`` is an instance of
+    ``classes`` (or None, with ``optional``)."""
+    if not (isinstance(value, classes) or (optional and value is None)):
+        raise TypeError(f"{what}, got {type(value).__name__}")
+
+
 def require(x, ok, message: str):
     """Return ``x`` after checking the boolean array ``ok`` (eagerly:
     ``ValueError``; traced: an ``equinox.error_if`` guard on ``x``, so use the

@@ -34,6 +34,7 @@ import jax.numpy as jnp
 import jax.random as jr
 from jaxtyping import Array
 
+from .._checks import require_type
 from ..scenes._planar import AbstractPlanarScene
 from ._corrections import Polynomial, _Network
 from ._experiment import (
@@ -281,15 +282,11 @@ class Hybrid(eqx.Module):
     def __init__(
         self, experiment: Experiment, learned: dict, residual: Residual | None = None
     ):
-        if not isinstance(experiment, Experiment):
-            raise TypeError(
-                f"Hybrid: expected an Experiment, got {type(experiment).__name__}"
-            )
-        if residual is not None and not isinstance(residual, Residual):
-            raise TypeError(
-                f"Hybrid.residual: expected a diffimpact.Residual or None, got "
-                f"{type(residual).__name__}"
-            )
+        require_type(experiment, Experiment, "Hybrid: expected an Experiment")
+        require_type(
+            residual, Residual, "Hybrid.residual: expected a diffimpact.Residual "
+            "or None", optional=True,
+        )  # fmt: skip
         learned = dict(learned or {})
         if not learned and residual is None:
             raise ValueError(

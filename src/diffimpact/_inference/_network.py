@@ -53,12 +53,7 @@ class VelocityNetwork(eqx.Module):
         seed: int = 0,
     ):
         spec = scene_spec(experiment.scene)
-        unknown = [q for q in inputs if q not in spec.inputs]
-        if unknown:
-            raise ValueError(
-                f"VelocityNetwork: input(s) {unknown} are not inputs of scene "
-                f"{spec.name!r}; expected any of {sorted(spec.inputs)}"
-            )
+        spec.refuse_unknown(inputs, "VelocityNetwork: input(s)")
         if not outputs:
             raise ValueError("VelocityNetwork: give at least one output quantity")
         self.inputs, self.outputs = tuple(inputs), tuple(outputs)

@@ -37,12 +37,7 @@ def check_rows(
     the file writes them (the scene's checks speak SI: radians for a column
     in degrees)."""
     spec = scene_spec(experiment.scene)
-    unknown = [q for q in inputs if q not in spec.inputs]
-    if unknown:
-        raise ValueError(
-            f"{path}: input column(s) {unknown} do not apply to scene "
-            f"{spec.name!r} (its inputs: {sorted(spec.inputs)})"
-        )
+    spec.refuse_unknown(inputs, f"{path}: input column(s)")
     missing = [q for q in spec.required if q not in inputs]
     if missing:
         raise ValueError(

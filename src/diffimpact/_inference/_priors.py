@@ -89,8 +89,8 @@ class LogNormalPrior(AbstractPrior):
     sigma: float = eqx.field(static=True, converter=float)
 
     def __check_init__(self):
-        _positive("LogNormalPrior.median", self.median)
-        _positive("LogNormalPrior.sigma", self.sigma)
+        for name in ("median", "sigma"):
+            _positive(f"LogNormalPrior.{name}", getattr(self, name))
 
     @property
     def support(self):
@@ -111,23 +111,32 @@ class LogNormalPrior(AbstractPrior):
         return f"lognormal(median={self.median:.6g}, sigma={self.sigma:.6g})"
 
 
-class UniformPrior(AbstractPrior):
-    """Uniform prior on ``(lower, upper)``; bounds the parameter."""
+class AbstractBoundedPrior(AbstractPrior):
+    """A prior on ``(lower, upper)``, which bounds the parameter."""
 
     lower: float = eqx.field(static=True, converter=float)
     upper: float = eqx.field(static=True, converter=float)
 
-    def __check_init__(self):
-        _finite("UniformPrior.lower", self.lower)
-        _finite("UniformPrior.upper", self.upper)
+    def _check_bounds(self, each, form: str) -> None:
+        """``each(name, value)`` on both bounds, then ``lower < upper``
+        (``form`` names the condition in the message)."""
+        for name in ("lower", "upper"):
+            each(f"{type(self).__name__}.{name}", getattr(self, name))
         if not self.lower < self.upper:
             raise ValueError(
-                f"UniformPrior needs lower < upper, got ({self.lower}, {self.upper})"
+                f"{type(self).__name__} needs {form}, got ({self.lower}, {self.upper})"
             )
 
     @property
     def support(self):
         return (self.lower, self.upper)
+
+
+class UniformPrior(AbstractBoundedPrior):
+    """Uniform prior on ``(lower, upper)``; bounds the parameter."""
+
+    def __check_init__(self):
+        self._check_bounds(_finite, "lower < upper")
 
     @property
     def center(self) -> float:
@@ -143,25 +152,12 @@ class UniformPrior(AbstractPrior):
         return f"uniform({self.lower:.6g}, {self.upper:.6g})"
 
 
-class LogUniformPrior(AbstractPrior):
+class LogUniformPrior(AbstractBoundedPrior):
     """Density ``1/x`` on ``(lower, upper)``, ``0 < lower``: every decade
     equally likely; bounds the parameter."""
 
-    lower: float = eqx.field(static=True, converter=float)
-    upper: float = eqx.field(static=True, converter=float)
-
     def __check_init__(self):
-        _positive("LogUniformPrior.lower", self.lower)
-        _positive("LogUniformPrior.upper", self.upper)
-        if not self.lower < self.upper:
-            raise ValueError(
-                "LogUniformPrior needs 0 < lower < upper, got "
-                f"({self.lower}, {self.upper})"
-            )
-
-    @property
-    def support(self):
-        return (self.lower, self.upper)
+        self._check_bounds(_positive, "0 < lower < upper")
 
     @property
     def center(self) -> float:

@@ -53,6 +53,16 @@ class SceneSpec:
         """The inputs every row must give."""
         return tuple(self.cls.data_required)
 
+    def refuse_unknown(self, names, where: str) -> None:
+        """``ValueError`` naming those of ``names`` that are not inputs of
+        the scene, after ``where`` (a file, a model)."""
+        unknown = [q for q in names if q not in self.inputs]
+        if unknown:
+            raise ValueError(
+                f"{where} {unknown} do not apply to scene {self.name!r} (its "
+                f"inputs: {sorted(self.inputs)})"
+            )
+
 
 # Ball-prism defaults (Alaci, Filote & Ciornei): bearing-steel ball, 19 mm diameter, on
 # an as-delivered OLC-45 (C45) prism.  The paper gives no material data: E, nu of both

@@ -134,8 +134,7 @@ def read_declarations(preamble, path: str) -> Declarations | None:
         lines[key] = lineno
     if not found:
         return None
-    missing = [k for k in KEYS if k not in found]
-    if missing:
+    if missing := [k for k in KEYS if k not in found]:
         raise DataError(
             f"{path}: the file declares {', '.join(sorted(found))} but not "
             f"{', '.join(missing)}; a planar body is declared by four lines, e.g. "

@@ -5,45 +5,39 @@ from __future__ import annotations
 import math
 import re
 
+# Factors to SI by dimension.  US customary units by their exact SI
+# definitions (international yard and pound, 1959; standard gravity for the
+# pound-force).  Inertia, density and acceleration serve the body
+# declarations of a planar-body file, not columns.
+_INCH, _POUND, _G0 = 0.0254, 0.45359237, 9.80665
+_FACTORS: dict[str, dict[str, float]] = {
+    "length": {"m": 1.0, "mm": 1e-3, "um": 1e-6, "in": _INCH, "ft": 0.3048},
+    "time": {"s": 1.0, "ms": 1e-3, "us": 1e-6},
+    "velocity": {"m_s": 1.0, "mm_s": 1e-3, "in_s": _INCH, "ft_s": 0.3048},
+    "angle": {"deg": math.pi / 180.0, "rad": 1.0},
+    "angular_velocity": {
+        "rad_s": 1.0,
+        "deg_s": math.pi / 180.0,
+        "rpm": 2.0 * math.pi / 60.0,
+    },
+    "mass": {"kg": 1.0, "g": 1e-3, "lb": _POUND},
+    "force": {"n": 1.0, "kn": 1e3, "lbf": _POUND * _G0},
+    "stress": {
+        "pa": 1.0,
+        "mpa": 1e6,
+        "gpa": 1e9,
+        "psi": _POUND * _G0 / _INCH**2,
+        "ksi": 1e3 * _POUND * _G0 / _INCH**2,
+    },
+    "inertia": {"kg_m2": 1.0, "g_mm2": 1e-9, "g_cm2": 1e-7},
+    "density": {"kg_m3": 1.0, "g_cm3": 1e3},
+    "acceleration": {"m_s2": 1.0},
+}
 # unit suffix -> (dimension, factor to SI)
 UNITS: dict[str, tuple[str, float]] = {
-    "m": ("length", 1.0),
-    "mm": ("length", 1e-3),
-    "um": ("length", 1e-6),
-    "s": ("time", 1.0),
-    "ms": ("time", 1e-3),
-    "us": ("time", 1e-6),
-    "m_s": ("velocity", 1.0),
-    "mm_s": ("velocity", 1e-3),
-    "deg": ("angle", math.pi / 180.0),
-    "rad": ("angle", 1.0),
-    "rad_s": ("angular_velocity", 1.0),
-    "deg_s": ("angular_velocity", math.pi / 180.0),
-    "rpm": ("angular_velocity", 2.0 * math.pi / 60.0),
-    "kg": ("mass", 1.0),
-    "g": ("mass", 1e-3),
-    "n": ("force", 1.0),
-    "kn": ("force", 1e3),
-    "pa": ("stress", 1.0),
-    "mpa": ("stress", 1e6),
-    "gpa": ("stress", 1e9),
-    # used by the body declarations of a planar-body file, not by columns
-    "kg_m2": ("inertia", 1.0),
-    "g_mm2": ("inertia", 1e-9),
-    "g_cm2": ("inertia", 1e-7),
-    "kg_m3": ("density", 1.0),
-    "g_cm3": ("density", 1e3),
-    "m_s2": ("acceleration", 1.0),
-    # US customary units, by their exact SI definitions (international yard
-    # and pound, 1959; standard gravity for the pound-force)
-    "in": ("length", 0.0254),
-    "ft": ("length", 0.3048),
-    "in_s": ("velocity", 0.0254),
-    "ft_s": ("velocity", 0.3048),
-    "lb": ("mass", 0.45359237),
-    "lbf": ("force", 0.45359237 * 9.80665),
-    "psi": ("stress", 0.45359237 * 9.80665 / 0.0254**2),
-    "ksi": ("stress", 1e3 * 0.45359237 * 9.80665 / 0.0254**2),
+    unit: (dimension, factor)
+    for dimension, units in _FACTORS.items()
+    for unit, factor in units.items()
 }
 
 SI = {

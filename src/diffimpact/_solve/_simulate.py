@@ -21,6 +21,7 @@ from .._checks import (
     is_traced,
     raise_input_error,
     require_scalars,
+    require_type,
 )
 from .._laws._base import AbstractNormalLaw
 from .._laws._friction import Friction
@@ -111,23 +112,13 @@ def _exact_tangential(scene, friction) -> bool:
 
 
 @eqx.filter_jit
-def _simulate(
-    scene,
-    law,
-    key,
-    settings,
-    n_history,
-    friction,
-    throw,
-    invalid=None,
-    checked=False,
-):
+def _simulate(inputs, key, settings, n_history, throw, invalid=None, checked=False):
     # `invalid`: from `guard(..., throw=False)` (a bad row is solved anyway,
     # without the scenes' own checks, and reported as `invalid_input`).
     # `checked` (traced, with `throw`): `invalid` comes from the inputs'
     # traced checks, and a failing one raises its own message (`finish`).
-    # `key`: the solver, `route`'s choice.
-    inputs = (scene, law, friction)
+    # `inputs`: (scene, law, friction); `key`: the solver, `route`'s choice.
+    scene, law, friction = inputs
     with inputs_guarded():
         planar = isinstance(scene, AbstractPlanarScene)
         if planar:  # free flight to the contact in closed form, not integrated
@@ -329,23 +320,16 @@ def simulate(
     """
     if method not in _METHODS:
         raise ValueError(f"`method` must be one of {_METHODS}, got {method!r}")
-    if not isinstance(scene, AbstractScene):
-        raise TypeError(
-            f"`scene` must be a diffimpact scene, got {type(scene).__name__}"
-        )
-    if not isinstance(law, AbstractNormalLaw):
-        raise TypeError(
-            f"`law` must be a diffimpact contact law, got {type(law).__name__}"
-        )
+    require_type(scene, AbstractScene, "`scene` must be a diffimpact scene")
+    require_type(law, AbstractNormalLaw, "`law` must be a diffimpact contact law")
     if n_history < 0 or (n_history > 0 and method not in ("auto", "smooth")):
         raise ValueError(
             "`n_history` must be >= 0, and histories come from method='smooth'"
         )
-    if friction is not None and not isinstance(friction, Friction):
-        raise TypeError(
-            f"`friction` must be None or a diffimpact.Friction, got "
-            f"{type(friction).__name__}"
-        )
+    require_type(
+        friction, Friction, "`friction` must be None or a diffimpact.Friction",
+        optional=True,
+    )  # fmt: skip
     planar = isinstance(scene, AbstractPlanarScene)
     if friction is not None and not planar:
         raise ValueError(
@@ -378,11 +362,9 @@ def simulate(
             f"{type(scene).__name__} is solved by method='smooth' only: its "
             "rotation couples to the normal motion, even without friction"
         )
-    if not isinstance(settings, SolverSettings):
-        raise TypeError(
-            f"`settings` must be a diffimpact.SolverSettings, got "
-            f"{type(settings).__name__}"
-        )
+    require_type(
+        settings, SolverSettings, "`settings` must be a diffimpact.SolverSettings"
+    )
     # Every check of the inputs: eagerly a ValueError naming the field, before
     # any solve.  Traced, with `throw`, the first failing check's message is
     # raised: for an ODE solve, by a check threaded through the inputs, so it
@@ -405,16 +387,9 @@ def simulate(
     elif _guarded:
         (scene, law, friction), invalid = guard((scene, law, friction), throw=False)
     try:
+        inputs = (scene, law, friction)
         res = _simulate(
-            scene,
-            law,
-            key,
-            settings,
-            n_history,
-            friction,
-            throw and traced,
-            invalid,
-            checked=checked,
+            inputs, key, settings, n_history, throw and traced, invalid, checked
         )
     except eqx.EquinoxRuntimeError as err:
         # Run here (an eager vmap or grad): the documented class.

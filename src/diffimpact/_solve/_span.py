@@ -68,6 +68,7 @@ from .._checks import (
     invalid,
     is_traced,
     require_scalars,
+    require_type,
 )
 from .._laws._base import AbstractNormalLaw
 from .._laws._friction import Friction
@@ -342,20 +343,17 @@ def simulate_span(
     first three impacts w.r.t. the drop height to ~1e-5, against up to 4e-3
     without; 1.4x the steps); pass ``tangent_rtol=None`` for values alone.
     """
-    if not isinstance(scene, AbstractMechanism):
-        raise TypeError(
-            "`scene` must be a diffimpact mechanism (scenes.BouncingBar, "
-            f"scenes.SliderCrank, ...), got {type(scene).__name__}"
-        )
-    if not isinstance(law, AbstractNormalLaw):
-        raise TypeError(
-            f"`law` must be a diffimpact contact law, got {type(law).__name__}"
-        )
-    if friction is not None and not isinstance(friction, Friction):
-        raise TypeError(
-            f"`friction` must be None or a diffimpact.Friction, got "
-            f"{type(friction).__name__}"
-        )
+    require_type(
+        scene,
+        AbstractMechanism,
+        "`scene` must be a diffimpact mechanism (scenes.BouncingBar, "
+        "scenes.SliderCrank, ...)",
+    )
+    require_type(law, AbstractNormalLaw, "`law` must be a diffimpact contact law")
+    require_type(
+        friction, Friction, "`friction` must be None or a diffimpact.Friction",
+        optional=True,
+    )  # fmt: skip
     if friction is not None and friction.compliant:
         raise ValueError(
             "`Friction(compliant=...)` (the Mindlin spring, or partial slip) is "

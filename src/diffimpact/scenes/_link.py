@@ -100,12 +100,13 @@ class RotatingLink(AbstractPlanarScene):
     }
     data_required: ClassVar = ("link_length",)
 
+    # positional: the link and its materials; keyword-only: the state, the
+    # tip, the environment
     mass: Array = eqx.field(converter=as_float)
     length: Array = eqx.field(converter=as_float)
     diameter: Array = eqx.field(converter=as_float)
     body: Material
     flat: Material
-    # keyword-only: the state, the tip, the environment
     impact_angle: Array = eqx.field(converter=as_float, kw_only=True)
     release_angle: Array = eqx.field(converter=as_float, default=0.0, kw_only=True)
     tip_radius: Array | None = eqx.field(
