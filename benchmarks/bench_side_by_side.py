@@ -60,11 +60,11 @@ for m in ("quadrature", "smooth", "events"):
         out["values"][f"{m}.{k}"] = [float(getattr(r, k))]
 v = jnp.linspace(0.05, 5.0, 1000)
 batch = jax.jit(jax.vmap(lambda v: di.simulate(di.scenes.NormalImpact(M, R, ball, plate, velocity=v), di.JacksonGreen(), "quadrature").cor_newton))
-out["values"]["batch.cor"] = np.asarray(timed("1,000 normal JG, vmapped quadrature", lambda: batch(v), 5)).tolist()
+out["values"]["batch.cor"] = np.asarray(timed("1,000 normal JG, vmapped quadrature", lambda: batch(v), 20)).tolist()
 import inspect
 tilt = "incline" if "incline" in inspect.signature(di.scenes.SphereOnIncline).parameters else "angle"  # renamed by the constructors' tidy-up
 inc = jax.jit(jax.vmap(lambda a: di.simulate(di.scenes.SphereOnIncline(M, R, ball, plate, height=0.05, **{tilt: a}), di.JacksonGreen(), friction=di.Friction(0.2)).extras["tangential_velocity_after"]))
-out["values"]["incline.vt"] = np.asarray(timed("100 spheres on an incline, vmapped", lambda: inc(jnp.linspace(0.1, 1.2, 100)), 5)).tolist()
+out["values"]["incline.vt"] = np.asarray(timed("100 spheres on an incline, vmapped", lambda: inc(jnp.linspace(0.1, 1.2, 100)), 20)).tolist()
 steel = di.Material(200e9, 0.3, np.inf, 7850.0)
 flat = di.Material(205e9, 0.29, 400e6, 7850.0)
 turn = "orientation" if "orientation" in inspect.signature(di.scenes.PlanarBody).parameters else "angle"  # renamed likewise

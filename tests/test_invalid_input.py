@@ -188,12 +188,11 @@ def test_table_with_throw_false():
 
 
 def test_a_failure_known_when_compiling_still_raises_its_message():
-    """The closed form's traced checks raise from its result check, after
-    the solve (not threaded through its inputs: that cut the program and a
-    single jitted call took 1.6x the time).  A bad value known when the
-    program is compiled (Python floats under filter_jit, a constant closed
-    over by jax.jit) makes the outputs constant NaN; the check must still
-    raise its own message, not return NaN or `invalid_input`'s message."""
+    """A bad value known when the program is compiled (Python floats under
+    filter_jit, a constant closed over by jax.jit) must still raise its own
+    message, not return NaN or another failure's message: a check placed
+    where constant folding can remove it (after the outputs are masked to a
+    constant NaN, say) would pass the rest of the table and fail here."""
     with pytest.raises(eqx.EquinoxRuntimeError, match=r"poisson_ratio.*got 0\.6\)"):
         eqx.filter_jit(_head_on)(0.6, True)
     scene = di.scenes.NormalImpact(

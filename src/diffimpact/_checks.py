@@ -243,73 +243,30 @@ def guard(tree, extra: Iterable[Check] = (), *, throw: bool = True):
 
     Concrete failures raise `InvalidInputError` at once.  Traced checks become
     one ``equinox.branched_error_if`` on the whole of ``tree`` (the first
-    failing check's message is raised, with the value and the row:
-    `_detail`); use the returned tree, never the argument, so the check stays
-    in the computation.
+    failing check's message is raised, with the value and the row: `_detail`);
+    use the returned tree, never the argument, so the check stays in the
+    computation.
 
     With ``throw=False`` nothing raises: the result is ``(tree, invalid)``,
     ``invalid`` a boolean array (per row under ``vmap``) that is True where a
     check fails, for the solve to report as ``RESULTS.invalid_input``."""
-    extra = tuple(extra)
     checks = [*collect_checks(tree), *extra]
     if not throw:
         return tree, invalid(checks)
     raise_failed(checks)
-    return _raise_traced(tree, extra, tree)
-
-
-def input_or_code_error(token, pred, code, code_messages, invalid_code, inputs):
-    """``equinox.branched_error_if(token, pred, code, code_messages)``, except
-    that where ``code`` is ``invalid_code`` the message raised is that of the
-    first failing traced check of ``inputs``, with its value and row
-    (`_detail`).  For a solve that reports its failures with a result code:
-    its inputs' checks raise from the same conditional, after the solve,
-    instead of one threaded through the inputs as `guard` does, which cut the
-    solve's program at its start: a single jitted call of the closed-form
-    impact took twice as long that way (108-166 against 58 us, measured).
-    Only whether a check fails enters the solve (as ``invalid_code``); which
-    one, and its value, are worked out on failure."""
-    checks = collect_checks(inputs)
-    raise_failed(checks)
-    positions = tuple(i for i, c in enumerate(checks) if _is_traced(c.ok))
-    if not positions or os.environ.get("EQX_ON_ERROR", "raise") != "raise":
-        return eqx.branched_error_if(token, pred, code, code_messages)
-    messages = _Messages(tuple(checks[i].message for i in positions))
-    bad_input = code == invalid_code
-    which = _detail(inputs, (), positions, len(checks), bad_input, messages.messages)
-    index = jnp.where(bad_input, len(code_messages) + which, code)
-    return eqx.branched_error_if(
-        token, pred, index, _Joined(tuple(code_messages), messages)
-    )
-
-
-def _raise_traced(inputs, extra: tuple[Check, ...], tree):
-    """``tree`` carrying one ``equinox.branched_error_if`` for the traced
-    checks of ``inputs`` and ``extra``.
-
-    Only whether any check fails is computed on the way: which one, and its
-    value, are worked out inside the conditional that runs on failure
-    (`_detail`), so that a valid input does not pay for the 40-odd flags and
-    values as buffers of their own."""
-    checks = [*collect_checks(inputs), *extra]
-    positions = tuple(i for i, c in enumerate(checks) if _is_traced(c.ok))
-    if not positions or not any(eqx.is_array(x) for x in jax.tree.leaves(tree)):
+    traced = [c for c in checks if _is_traced(c.ok)]
+    if not traced or not any(eqx.is_array(x) for x in jax.tree.leaves(tree)):
         return tree
-    failing = functools.reduce(
-        jnp.logical_or, [jnp.any(jnp.logical_not(checks[i].ok)) for i in positions]
-    )
-    messages = _Messages(tuple(checks[i].message for i in positions))
+    bad = jnp.stack([jnp.any(jnp.logical_not(c.ok)) for c in traced])
+    index = jnp.argmax(bad)
     # The value and the row are read by a host callback, and only where
     # equinox raises: with EQX_ON_ERROR=nan (a graph to export) or breakpoint
-    # the program holds no callback of ours, and the first check's message
-    # stands for all.
-    index = jnp.zeros((), jnp.int32)
+    # the program holds no callback of ours.
     if os.environ.get("EQX_ON_ERROR", "raise") == "raise":
-        index = _detail(
-            inputs, extra, positions, len(checks), failing, messages.messages
-        )
+        index = _detail(traced, bad, index)
+    messages = _Messages(tuple(c.message for c in traced))
     try:
-        return eqx.branched_error_if(tree, failing, index, messages)
+        return eqx.branched_error_if(tree, jnp.any(bad), index, messages)
     except eqx.EquinoxRuntimeError:
         # Run here (an eager vmap or grad): the documented class.
         if _last.text is None:
@@ -347,23 +304,6 @@ class _Messages(Sequence):
         return text
 
 
-@dataclasses.dataclass(frozen=True)
-class _Joined(Sequence):
-    """A result code's messages, then a guard's (`input_or_code_error`)."""
-
-    codes: tuple[str, ...]
-    inputs: _Messages
-
-    def __len__(self) -> int:
-        return len(self.codes) + len(self.inputs)
-
-    def __getitem__(self, i):
-        if i < len(self.codes):
-            _last.text = _last.value = None
-            return self.codes[i]
-        return self.inputs[i - len(self.codes)]
-
-
 class _Last:
     """The last message handed to equinox, and its parts (for `guard`'s
     eager re-raise, `raise_as_invalid` and the log filter)."""
@@ -376,15 +316,6 @@ class _Last:
 
 _last = _Last()
 _details: dict = {}
-
-
-def raise_input_error(err: BaseException) -> None:
-    """Raise `InvalidInputError` with the traced input check's message (its
-    value and row) if ``err``, an equinox runtime error raised where
-    diffimpact ran the computation (an eager ``vmap`` or ``grad``), reports
-    one; return otherwise."""
-    if _last.text is not None and _last.text in str(err):
-        raise InvalidInputError(_last.text) from None
 
 
 def raise_as_invalid(err: BaseException, first_row: int | None, rows: int) -> None:
@@ -402,37 +333,24 @@ def raise_as_invalid(err: BaseException, first_row: int | None, rows: int) -> No
     raise InvalidInputError(f"{message} (got {shown}{where})") from None
 
 
-def _detail(inputs, extra, positions, count, failing, messages):
-    """The index of the first failing check, after a host callback has written
-    its message with the value and the row; zero while nothing fails.  The
-    checks are computed again inside a ``lax.cond`` on the whole batch's
-    failure, from ``inputs`` and ``extra``'s values, so a valid input runs
-    none of this.  The index is returned through the callback, so equinox's
-    error waits for it."""
-    dynamic, static = eqx.partition(inputs, eqx.is_array)
-    parts = [(c.value, c.ok) for c in extra]
-    kinds = [c.message for c in extra]
+def _detail(checks: list[Check], bad, index):
+    """``index`` (the failing check), after a host callback has written the
+    check's message with its value and row, only when a check fails: the
+    callback sits in a ``lax.cond`` on the whole batch's failure, so a valid
+    input runs none.  The check's index is returned through the callback, so
+    equinox's error waits for it."""
+    values = [jax.lax.stop_gradient(jnp.asarray(c.value)) for c in checks]
+    ndims = tuple(jnp.ndim(v) for v in values)
+    messages = tuple(c.message for c in checks)
+    out = jax.ShapeDtypeStruct(jnp.shape(index), index.dtype)
+    record = functools.partial(_record, messages, ndims, index.dtype)
 
-    def failed(dynamic, parts):
-        again = [
-            *collect_checks(eqx.combine(dynamic, static)),
-            *(Check(v, ok, m) for (v, ok), m in zip(parts, kinds, strict=True)),
-        ]
-        # the same checks in the same order: which ones exist depends on
-        # structure only (a field that is None, a mode count), not on values
-        assert len(again) == count, (len(again), count)
-        traced = [again[i] for i in positions]
-        bad = jnp.stack([jnp.any(jnp.logical_not(c.ok)) for c in traced])
-        values = [jax.lax.stop_gradient(jnp.asarray(c.value)) for c in traced]
-        ndims = tuple(jnp.ndim(v) for v in values)
-        record = functools.partial(_record, messages, ndims, jnp.int32)
-        out = jax.ShapeDtypeStruct(jnp.shape(bad)[:-1], jnp.int32)
+    def failed(bad, index, values):
+        del index
         return jax.pure_callback(record, out, bad, *values, vmap_method="broadcast_all")
 
-    def passed(dynamic, parts):
-        return jnp.zeros(jnp.shape(failing), jnp.int32)
-
-    return jax.lax.cond(unvmap_any(failing), failed, passed, dynamic, parts)
+    fails = unvmap_any(jnp.any(bad))
+    return jax.lax.cond(fails, failed, lambda b, i, v: i, bad, index, values)
 
 
 def _record(messages, ndims, dtype, bad, *values):

@@ -8,7 +8,7 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array
 
-from ._checks import InvalidInputError, input_or_code_error
+from ._checks import InvalidInputError
 from ._materials import MAX_DEPTH
 
 
@@ -154,13 +154,9 @@ def first_failure(*codes):
     return out
 
 
-def finish(tree, result, throw: bool, inputs=None):
+def finish(tree, result, throw: bool):
     """NaN the floating-point leaves of ``tree`` where ``result`` failed; with
-    ``throw``, raise (traced: ``equinox`` runtime error) instead.
-
-    ``inputs``: where ``result`` is ``invalid_input``, the message raised is
-    that of the first failing check of ``inputs`` (its field, value and row)
-    rather than the code's (`diffimpact._checks.input_or_code_error`)."""
+    ``throw``, raise (traced: ``equinox`` runtime error) instead."""
     failed = result != RESULTS.successful
 
     def nan(x):
@@ -173,17 +169,7 @@ def finish(tree, result, throw: bool, inputs=None):
         # After the NaN mask, so that the outputs depend on the check: with a
         # failure known at compile time (a scene closed over by `jax.jit`),
         # the mask folds to a constant and a check before it would be dropped.
-        if inputs is None:
-            tree = result.error_if(tree, failed)
-        else:
-            tree = input_or_code_error(
-                tree,
-                failed,
-                result._value,
-                RESULTS._index_to_message,
-                RESULTS.invalid_input._value,
-                inputs,
-            )
+        tree = result.error_if(tree, failed)
     return tree
 
 
