@@ -284,9 +284,11 @@ class Hybrid(eqx.Module):
     ):
         require_type(experiment, Experiment, "Hybrid: expected an Experiment")
         require_type(
-            residual, Residual, "Hybrid.residual: expected a diffimpact.Residual "
-            "or None", optional=True,
-        )  # fmt: skip
+            residual,
+            Residual,
+            "Hybrid.residual: expected a diffimpact.Residual or None",
+            optional=True,
+        )
         learned = dict(learned or {})
         if not learned and residual is None:
             raise ValueError(

@@ -324,9 +324,11 @@ def simulate(
             "`n_history` must be >= 0, and histories come from method='smooth'"
         )
     require_type(
-        friction, Friction, "`friction` must be None or a diffimpact.Friction",
+        friction,
+        Friction,
+        "`friction` must be None or a diffimpact.Friction",
         optional=True,
-    )  # fmt: skip
+    )
     planar = isinstance(scene, AbstractPlanarScene)
     if friction is not None and not planar:
         raise ValueError(

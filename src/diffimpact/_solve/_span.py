@@ -351,9 +351,11 @@ def simulate_span(
     )
     require_type(law, AbstractNormalLaw, "`law` must be a diffimpact contact law")
     require_type(
-        friction, Friction, "`friction` must be None or a diffimpact.Friction",
+        friction,
+        Friction,
+        "`friction` must be None or a diffimpact.Friction",
         optional=True,
-    )  # fmt: skip
+    )
     if friction is not None and friction.compliant:
         raise ValueError(
             "`Friction(compliant=...)` (the Mindlin spring, or partial slip) is "
