@@ -79,8 +79,6 @@ EXTENDED_ONLY = {
     "tests/test_multi.py::test_wild_trial_state_gives_no_nan_gradient",
     "tests/test_multi.py::test_zero_clearance_follows_the_rigid_mechanism_over_a_revolution",
     "tests/test_multi.py::test_zero_clearance_start_ups_over_a_revolution",
-    "tests/test_posterior.py::test_a_bounded_prior_bounds_the_draws",
-    "tests/test_posterior.py::test_an_unidentifiable_pair_is_reported",
     "tests/test_posterior.py::test_posterior_agrees_with_least_squares",
     "tests/test_slip.py::test_critical_angle_ball",
     "tests/test_slip.py::test_f2_gradients",
