@@ -15,6 +15,9 @@ every model.
 - ``mindlin``: compliant Jackson-Green impacts with Mindlin's tangential
   spring (the planar ODE), where learned COR and mu stopped above the
   noise floor (`bench_tangential`);
+- ``--truth tracked``: the offset truth with noise on the velocities
+  before as well as after (3.5 %) and on the orientation, as a camera
+  tracks a body; training sets up to 859 rows;
 - ``--truth speed``, ``--truth jackson-green``: the truths of
   `bench_learned`, which a learned COR explains (a check that the residual
   costs nothing where the parameters suffice).
