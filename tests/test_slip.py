@@ -239,10 +239,7 @@ def test_critical_angle_ball():
     angle (same compliant contact, gravity included): measured 2.6e-6 rad
     apart, the bias gravity leaves in the exp(-1) level; (2) Routh's rigid
     closed form tan(phi_c) = 3.5 mu (1 + e), which neglects gravity during the
-    contact (g t_c / v' = 2.5e-4): measured 5.6e-5 rad.  The gradient d phi_c /
-    d mu (4.394000) against the closed form (measured 7.0e-5 off, gravity
-    again) and central differences of the smooth (3.5e-7) and of the sharp
-    critical angle (3.7e-7)."""
+    contact (g t_c / v' = 2.5e-4): measured 5.6e-5 rad."""
     mu = 0.1
     phi_c = _ball_critical(mu)
     assert phi_c.shape == (1,)
@@ -251,7 +248,15 @@ def test_critical_angle_ball():
     routh = math.atan(3.5 * mu * (1.0 + E))
     assert abs(phi_c - routh) < 2e-4  # rad
 
-    # narrow brackets from here on: fewer solves
+
+def test_critical_angle_ball_gradient():
+    """The gradient d phi_c / d mu (4.394000) of the critical angle above
+    against the closed form (measured 7.0e-5 off, gravity again) and central
+    differences of the smooth (3.5e-7) and of the sharp critical angle
+    (3.7e-7)."""
+    mu = 0.1
+    phi_c = float(_ball_critical(mu)[0])
+    # narrow brackets: fewer solves
     lo, hi = math.degrees(phi_c) - 0.5, math.degrees(phi_c) + 0.5
     grad = float(jax.grad(lambda m: _ball_critical(m, lo, hi)[0])(mu))
     k = 3.5 * (1.0 + E)
@@ -278,6 +283,16 @@ def test_critical_angles_bar():
     rigid = np.degrees(fine[np.nonzero(np.diff(np.sign(g)))[0]])
     assert found.shape == rigid.shape == (2,)
     assert np.all(np.abs(found - rigid) < 0.3), (found, rigid)
+    # Wang & Fu's impulse criterion (eq. 22) finds the same two angles: the
+    # fast case of test_flexible_bar's Jackson-Green one (measured 5.4e-4 rad
+    # apart here, 6.4e-4 there)
+    impulse = di.critical_angles(
+        bar, FAST_LAW, di.Friction(0.5), grid, criterion="impulse"
+    )
+    impulse = np.degrees(np.asarray(impulse))
+    assert impulse.shape == (2,)
+    np.testing.assert_allclose(np.radians(impulse), np.radians(found), atol=1e-3)
+    np.testing.assert_allclose(impulse, rigid, atol=0.2)
 
 
 def test_critical_angles_errors():
