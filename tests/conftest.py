@@ -145,6 +145,32 @@ def _tier(item) -> str:
     return "default"
 
 
+# Seconds each test file took in the default tier (a full run on 2 cores,
+# 2026-11-29), to order the files: `--dist loadfile` hands whole files to the
+# two workers as they free up, and with the longest first (and
+# `--no-loadscope-reorder`, which would order them by their number of tests)
+# the workers finish together; in that run one idled its last 40 s.  A file
+# not listed goes first, as if long.
+_FILE_SECONDS = {
+    "test_docs": 120, "test_body": 106, "test_learned": 86, "test_multi": 81,
+    "test_contact_space": 69, "test_fit": 63, "test_reliability": 61,
+    "test_references": 59, "test_partial_slip": 56, "test_reliability_io": 52,
+    "test_layer": 51, "test_jackson_green": 39, "test_docs_cli": 38,
+    "test_sweep": 38, "test_tangential": 35, "test_incline": 35,
+    "test_gradients": 31, "test_fit_rows": 30, "test_slip": 30, "test_rigid": 29,
+    "test_flexible_bar": 29, "test_collinear": 28, "test_stress": 28,
+    "test_posterior": 27, "test_resume": 23, "test_cli_learn": 20,
+    "test_hertz": 19, "test_cli_fit": 17, "test_energy": 17, "test_body_data": 16,
+    "test_line_contact": 16, "test_extending": 14, "test_api": 13,
+    "test_compliance": 11, "test_invalid_input": 10, "test_link": 10,
+    "test_validation": 9, "test_frames": 7, "test_bar": 7, "test_newcomer": 6,
+}  # fmt: skip
+
+
+def _file_seconds(item) -> float:
+    return _FILE_SECONDS.get(pathlib.Path(item.nodeid.split("::")[0]).stem, 1e3)
+
+
 @pytest.hookimpl(tryfirst=True)
 def pytest_collection_modifyitems(config, items):
     """Mark the tests listed in tests/extended.txt ``extended`` (before
@@ -185,3 +211,6 @@ def pytest_collection_modifyitems(config, items):
         raise pytest.UsageError(
             f"tests/extended.txt names tests that do not exist: {sorted(missing)}"
         )
+    # longest files first (a stable sort: each file's tests stay together and
+    # in order)
+    items.sort(key=lambda item: -_file_seconds(item))
