@@ -8,6 +8,7 @@ from pathlib import Path
 import numpy as np
 
 import diffimpact as di
+from diffimpact._cli._learn import error_names, residual_outputs
 from diffimpact._cli._main import main
 
 ELLIPSE = str(Path(__file__).parent.parent / "data" / "synthetic_ellipse_noise2pct.csv")
@@ -82,3 +83,40 @@ def test_learn_bad_arguments(tmp_path, capsys):
     normal.write_text("scene,impact_velocity_m_s,cor_normal\nnormal_impact,1.0,0.5\n")
     assert main(["learn", str(normal), "--out", str(tmp_path / "n")]) == 2
     assert "learn needs a planar scene" in capsys.readouterr().err
+
+
+def test_what_the_residual_corrects_and_what_the_error_is():
+    """The residual corrects the body's velocities after that a file
+    measures, else (a sphere's CORs) what it measures: it once asked a
+    sphere for a body's velocities, after training the other models.  The
+    error is named for what `train` computes: the kinetic norm only for the
+    three velocities."""
+    velocities = ("velocity_x_after", "velocity_y_after", "angular_velocity")
+    assert residual_outputs({"cor_normal": 0, "velocity_y_after": 0}) == (
+        "velocity_y_after",
+    )
+    assert residual_outputs(dict.fromkeys(velocities)) == velocities
+    assert residual_outputs({"cor_normal": 0, "cor_tangential": 0}) == (
+        "cor_normal",
+        "cor_tangential",
+    )
+    assert "kinetic norm" in error_names(velocities[::-1])[0]
+    what, printed = error_names(("cor_normal", "cor_tangential"))
+    assert "kinetic" not in what and what.startswith("median RMS error of")
+    assert printed.startswith("error, RMS of ['cor_normal', 'cor_tangential']")
+
+
+def test_learn_a_sphere_file_corrects_what_it_measures(tmp_path, capsys):
+    """The same end to end, on the ball-prism file (a sphere on an incline,
+    its CORs measured): every model trained and judged, the residual's
+    outputs and the error's name written."""
+    data = str(Path(__file__).parent.parent / "data" / "ball_prism.csv")
+    out = tmp_path / "learn"
+    assert main(["learn", data, "--out", str(out), "--no-network"]) == 0
+    printed = capsys.readouterr().out
+    quantities = ["cor_normal", "cor_tangential"]
+    assert f"held-out median error, RMS of {quantities} in units" in printed
+    summary = json.loads((out / "learn.json").read_text())
+    assert summary["residual"]["outputs"] == quantities
+    assert summary["error"].startswith(f"median RMS error of {quantities}")
+    assert all(np.isfinite(e) for e in summary["held_out_median_error"].values())

@@ -196,9 +196,7 @@ def run(args) -> int:
     }
     if not args.no_residual:
         features = _residual_features(args.residual_features, data)
-        # the body's velocities after that the file measures (all three when
-        # it measures none of them: the residual's default)
-        outputs = tuple(q for q in _VELOCITIES if q in data.outputs) or None
+        outputs = residual_outputs(data.outputs)
         models["hybrid + residual"] = di.Hybrid(
             experiment,
             learned,
@@ -225,6 +223,30 @@ def run(args) -> int:
             os.rmdir(out)
 
 
+def residual_outputs(measured) -> tuple[str, ...]:
+    """What the residual corrects: the body's velocities after that the
+    file measures; in a file that measures none of them (a sphere's
+    restitution coefficients, say), what it measures."""
+    return tuple(q for q in _VELOCITIES if q in measured) or tuple(measured)
+
+
+def error_names(quantities) -> tuple[str, str]:
+    """``(for learn.json, for the printed table)``: what `diffimpact.train`'s
+    per-row error is for these quantities.  Relative in the kinetic norm
+    where they are the body's three velocities after; else the RMS of the
+    residuals, each in units of its quantity's noise scale
+    (`TrainResult.scale`)."""
+    quantities = list(quantities)
+    if set(quantities) == set(_VELOCITIES):
+        kinetic = "median relative error of the velocities after, kinetic norm"
+        return kinetic, "relative error"
+    return (
+        f"median RMS error of {quantities}, each in units of its noise scale "
+        "(the file's median sigma, else its spread over the training rows)",
+        f"error, RMS of {quantities} in units of their noise",
+    )
+
+
 def _learn_and_write(args, data, experiment, models, train, test, out) -> int:
     import numpy as np
 
@@ -247,8 +269,9 @@ def _learn_and_write(args, data, experiment, models, train, test, out) -> int:
             f"error {r.median_error(test):.4f}",
             flush=True,
         )
+    what, printed = error_names(next(iter(results.values())).quantities)
     width = max(len(m) for m in models)
-    print(f"\nheld-out median relative error ({len(test)} rows):")
+    print(f"\nheld-out median {printed} ({len(test)} rows):")
     for name, r in results.items():
         print(f"  {name:<{width}}  {r.median_error(test):.4f}")
     lines = data.lines if data.lines is not None else np.arange(1, data.n + 1)
@@ -276,7 +299,7 @@ def _learn_and_write(args, data, experiment, models, train, test, out) -> int:
             "features": list(results["hybrid + residual"].model.residual.features),
             "outputs": list(results["hybrid + residual"].model.residual.outputs),
         },
-        "error": "median relative error of the velocities after, kinetic norm",
+        "error": what,
         "held_out_median_error": {
             m: _json_number(r.median_error(test)) for m, r in results.items()
         },
