@@ -362,22 +362,17 @@ def _contraction(names, transforms, priors, pos, seed) -> tuple[str, float]:
     prior's own scale (`_on_log_scale`)."""
     logs = [_on_log_scale(p, t) for p, t in zip(priors, transforms, strict=True)]
 
-    def scaled(u, t, log):  # the sampler's u -> x or log x
-        x = np.asarray(t.forward(jnp.asarray(u)), dtype=float)
-        return np.log(x) if log else x
+    def scaled(x, logs):  # parameters (..., p) -> each in its prior's scale
+        x = np.array(x, dtype=float)
+        x[..., logs] = np.log(x[..., logs])
+        return x
 
     var = np.empty(len(names))
     for i, (p, t, log) in enumerate(zip(priors, transforms, logs, strict=True)):
         u = prior_draws_u(p, t, _PRIOR_DRAWS, seed + i)
-        var[i] = np.var(scaled(u[np.abs(u) <= U_MAX], t, log))  # as sampled: boxed
-    flat = pos.reshape(-1, len(names))
-    coords = np.stack(
-        [
-            scaled(flat[:, i], t, log)
-            for i, (t, log) in enumerate(zip(transforms, logs, strict=True))
-        ],
-        axis=1,
-    )
+        u = u[np.abs(u) <= U_MAX, None]  # as the sampler sees it: boxed
+        var[i] = np.var(scaled(to_x([t], u), [log]))
+    coords = scaled(to_x(transforms, pos.reshape(-1, len(names))), logs)
     post = np.atleast_2d(np.cov(coords.T))
     s = np.sqrt(var)
     lam, w = np.linalg.eigh(post / np.outer(s, s))
