@@ -207,15 +207,17 @@ def test_moduli_that_enter_only_through_e_star_are_reported(data):
     posterior keeps more than half its prior spread.  Against the posterior
     of the same priors (log-normal, each modulus's default) and likelihood on
     a 1,001 x 1,001 grid in (log E, log E_body): the mean and sd of log E*,
-    which the data fix (measured 0.07 sd and 2 % off), within the Monte-Carlo
-    error of the draws; the spread of log E - log E_body along the ridge,
-    which NUTS travels with few effective draws (ESS ~30: an sd's own
-    Monte-Carlo error ~13 %), within 40 % (measured 18 %)."""
+    which the data fix, and the spread of log E - log E_body along the ridge.
+    2 chains of 1,000 draws: with 200 (ESS of log E* 140-310) the sd of
+    log E* came 2-12 % off over seeds 0-5, a 10 % bound inside its own
+    Monte-Carlo scatter; with 1,000 (ESS 1,000-1,370), seeds 0-5: mean
+    <= 0.054 sd, sd <= 7.2 %, ridge <= 3.6 % off (seed 0: 0.026 sd, 3.9 %,
+    2.1 %), within 0.15 sd, 10 % and 20 %."""
     path, measured, sigma = data
     with pytest.warns(di.IdentifiabilityWarning, match="do not determine") as rec:
         r = di.posterior(
             path, experiment(), free=["youngs_modulus", "scene.body.youngs_modulus"],
-            num_samples=200, num_warmup=200, num_chains=2, max_tree_depth=6,
+            num_samples=1000, num_warmup=200, num_chains=2, max_tree_depth=6,
         )  # fmt: skip
     assert not r.identifiable and r.contraction[1] > 0.5
     msg = next(str(w.message) for w in rec if w.category is di.IdentifiabilityWarning)
@@ -241,7 +243,11 @@ def test_moduli_that_enter_only_through_e_star_are_reported(data):
     log_draws = np.log(np.asarray(r.samples).reshape(-1, 2))
     star_mean, star_sd = moments(log_e_star(A, B), w)
     draws_mean, draws_sd = moments(log_e_star(*log_draws.T))
-    assert abs(draws_mean - star_mean) < 0.15 * star_sd
-    assert abs(draws_sd / star_sd - 1) < 0.1
     ridge_sd = moments(A - B, w)[1]
-    assert abs(moments(log_draws[:, 0] - log_draws[:, 1])[1] / ridge_sd - 1) < 0.4
+    errors = (
+        abs(draws_mean - star_mean) / star_sd,
+        abs(draws_sd / star_sd - 1),
+        abs(moments(log_draws[:, 0] - log_draws[:, 1])[1] / ridge_sd - 1),
+    )
+    print("log E* mean, sd; ridge sd:", errors)
+    assert errors[0] < 0.15 and errors[1] < 0.1 and errors[2] < 0.2, errors

@@ -458,6 +458,32 @@ def test_cli_second_run_compiles_nothing(tmp_path, argv):
     assert not (tmp_path / "off").exists()
 
 
+def test_the_command_line_picks_the_fast_compiling_code_generator(monkeypatch):
+    """`use_fast_compile` appends XLA's flag on the jaxlib series where it was
+    measured, keeps what the user set, and leaves XLA's defaults alone with
+    DIFFIMPACT_XLA_DEFAULTS=1 or on another jaxlib (XLA refuses unknown
+    flags, so a newer jaxlib must not get it)."""
+    import importlib.metadata
+
+    from diffimpact._cli._main import FAST_COMPILE_FLAG, use_fast_compile
+
+    monkeypatch.setattr(importlib.metadata, "version", lambda name: "0.10.2")
+    env = {"XLA_FLAGS": "--xla_force_host_platform_device_count=2"}
+    assert use_fast_compile(env)
+    assert env["XLA_FLAGS"].split() == [
+        "--xla_force_host_platform_device_count=2",
+        FAST_COMPILE_FLAG,
+    ]
+    assert use_fast_compile(env) and env["XLA_FLAGS"].count(FAST_COMPILE_FLAG) == 1
+    mine = {"XLA_FLAGS": "--xla_cpu_use_fusion_emitters=true"}
+    assert not use_fast_compile(mine)
+    assert mine == {"XLA_FLAGS": "--xla_cpu_use_fusion_emitters=true"}
+    off = {"DIFFIMPACT_XLA_DEFAULTS": "1"}
+    assert not use_fast_compile(off) and "XLA_FLAGS" not in off
+    monkeypatch.setattr(importlib.metadata, "version", lambda name: "0.11.0")
+    assert not use_fast_compile(env := {}) and env == {}
+
+
 @pytest.mark.parametrize(
     "argv, message",
     [

@@ -107,7 +107,10 @@ def _run_script(tmp_path, nproc, env_extra):
     script = tmp_path / "sharded.py"
     script.write_text(_SCRIPT)
     out = tmp_path / f"out{nproc}.npz"
-    env = {**os.environ, **env_extra, "JAX_PLATFORMS": "cpu"}
+    # The parent's XLA flags too (tests/conftest.py sets the CPU compiler's
+    # emitters): bitwise equality holds between programs of one compiler.
+    flags = f"{os.environ.get('XLA_FLAGS', '')} {env_extra.pop('XLA_FLAGS', '')}"
+    env = {**os.environ, **env_extra, "XLA_FLAGS": flags, "JAX_PLATFORMS": "cpu"}
     with socket.socket() as s:  # a free port for the coordinator
         s.bind(("localhost", 0))
         port = str(s.getsockname()[1])
