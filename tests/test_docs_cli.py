@@ -45,7 +45,10 @@ TIMEOUT = 300  # seconds per command: a cold compilation cache on a busy machine
 # A wall time or a rate: "2.5 s", "(1.1 s)", "20.53 impacts/s", "21/s".
 TIMING = re.compile(r"\d[\d,]*(?:\.\d+)?(?= s\b| s$|/s\b| impacts/s\b)")
 # Flags the page may name that are not the command line's own.
-OTHER_FLAGS = {"--xla_force_host_platform_device_count"}
+OTHER_FLAGS = {
+    "--xla_force_host_platform_device_count",
+    "--xla_cpu_use_fusion_emitters",
+}
 
 
 def console_blocks():
