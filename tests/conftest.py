@@ -152,24 +152,26 @@ def _tier(item) -> str:
 
 
 # Seconds each test file took in the default tier (a full run on 2 cores,
-# 2026-11-29), to order the files: `--dist loadfile` hands whole files to the
-# two workers as they free up, and with the longest first (and
-# `--no-loadscope-reorder`, which would order them by their number of tests)
-# the workers finish together; in that run one idled its last 40 s.  A file
-# not listed goes first, as if long.
+# 2026-11-29, `--durations=0`; the files of tests moved in from the long tier
+# since, by those tests' own times), to order the files: `--dist loadfile`
+# hands whole files to the two workers as they free up, and with the longest
+# first (and `--no-loadscope-reorder`, which would order them by their number
+# of tests) the workers finish together; ordered by number of tests, one
+# idled its last 40 s.  A file not listed goes first, as if long.
 _FILE_SECONDS = {
-    "test_docs": 120, "test_body": 106, "test_learned": 86, "test_multi": 81,
-    "test_contact_space": 69, "test_fit": 63, "test_reliability": 61,
-    "test_references": 59, "test_partial_slip": 56, "test_reliability_io": 52,
-    "test_layer": 51, "test_jackson_green": 39, "test_docs_cli": 38,
-    "test_sweep": 38, "test_tangential": 35, "test_incline": 35,
-    "test_gradients": 31, "test_fit_rows": 30, "test_slip": 30, "test_rigid": 29,
-    "test_flexible_bar": 29, "test_collinear": 28, "test_stress": 28,
-    "test_posterior": 27, "test_resume": 23, "test_cli_learn": 20,
-    "test_hertz": 19, "test_cli_fit": 17, "test_energy": 17, "test_body_data": 16,
-    "test_line_contact": 16, "test_extending": 14, "test_api": 13,
-    "test_compliance": 11, "test_invalid_input": 10, "test_link": 10,
-    "test_validation": 9, "test_frames": 7, "test_bar": 7, "test_newcomer": 6,
+    "test_docs": 81, "test_multi": 76, "test_body": 75, "test_learned": 58,
+    "test_fit": 56, "test_slip": 51, "test_flexible_bar": 45,
+    "test_contact_space": 44, "test_partial_slip": 44,
+    "test_reliability_io": 39, "test_layer": 35, "test_reliability": 35,
+    "test_tangential": 33, "test_references": 32, "test_jackson_green": 31,
+    "test_extending": 28, "test_docs_cli": 26, "test_cli_learn": 26,
+    "test_resume": 26, "test_sweep": 24, "test_line_contact": 23,
+    "test_incline": 22, "test_fit_rows": 21, "test_rigid": 21,
+    "test_collinear": 19, "test_stress": 19, "test_bar": 19, "test_link": 18,
+    "test_posterior": 18, "test_gradients": 18, "test_cli_fit": 12,
+    "test_body_data": 11, "test_hertz": 10, "test_energy": 10,
+    "test_compliance": 9, "test_api": 8, "test_invalid_input": 6,
+    "test_newcomer": 5, "test_validation": 4, "test_frames": 4,
 }  # fmt: skip
 
 

@@ -516,7 +516,6 @@ def test_zero_clearance_follows_the_rigid_mechanism_over_a_revolution():
     assert np.all(err / x_ideal < 1e-6)
 
 
-@pytest.mark.extended
 def test_zero_clearance_start_ups_over_a_revolution():
     """Start-ups from rest at four crank angles (each run turns about 1.5 rad
     in 1 s): a harsher load case than the running revolution above.  At rest
@@ -782,16 +781,16 @@ def _bar_loss(p, settings):
     return jnp.stack([im.dissipated_work[0], im.velocity_after[0, 2]])
 
 
-@pytest.mark.extended
 @pytest.mark.parametrize(
     "damping, tol_height",
     [
-        # c_max = 0.1: no release kink (k g^2 + c g_dot stays > 0 while
-        # g > 0), only the C^1 corner of STEP at g = d_pen.  W.r.t. the
+        # c_max = 0.1 (in the long tier; the default tier runs c_max = 10):
+        # no release kink (k g^2 + c g_dot stays > 0 while g > 0), only the
+        # C^1 corner of STEP at g = d_pen.  W.r.t. the
         # height, loss (a small difference of energies) and spin: 6.0e-3 and
         # 1.4e-5 without the probe tangent (`SpanSettings.tangent_rtol`), the
         # step sequence deciding; 5.3e-6 and 1.4e-7 with it.
-        (0.1, (5e-5, 2e-6)),
+        pytest.param(0.1, (5e-5, 2e-6), marks=pytest.mark.extended),
         # The source's c_max = 10: the force lets go at g > 0 (max(0, .) of
         # IM-1, a C^0 kink whose instant moves with the height): 2.9e-3 and
         # 7.4e-4 without the probe (1.6e-2 / 4.1e-3 in an earlier step
