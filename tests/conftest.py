@@ -16,16 +16,16 @@ os.environ.setdefault(
     str(pathlib.Path(__file__).parent.parent / ".pytest_cache" / "jax"),
 )
 os.environ.setdefault("JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS", "0")
-# The command line's own cache (diffimpact._cli._main.use_compilation_cache): the
+# The command line's own cache (diffimpact._cli._jax_setup.use_compilation_cache): the
 # same folder, never the user's home.
 os.environ.setdefault("DIFFIMPACT_CACHE_DIR", os.environ["JAX_COMPILATION_CACHE_DIR"])
 # XLA's faster-compiling CPU code generator, as the command line uses it
-# (diffimpact._cli._main.use_fast_compile): the suite's time is mostly
+# (diffimpact._cli._jax_setup.use_fast_compile): the suite's time is mostly
 # compiling, 8:45 against 12:21 under XLA's defaults (measured 2026-11-29,
 # jaxlib 0.10.2).  Every bound holds under either; DIFFIMPACT_XLA_DEFAULTS=1
 # runs the suite with XLA's defaults.  Subprocesses (the CLI, notebooks)
 # inherit the flags.  Importing diffimpact computes nothing, so XLA reads them.
-from diffimpact._cli._main import use_fast_compile  # noqa: E402
+from diffimpact._cli._jax_setup import use_fast_compile  # noqa: E402
 
 use_fast_compile()
 

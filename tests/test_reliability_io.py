@@ -465,7 +465,7 @@ def test_the_command_line_picks_the_fast_compiling_code_generator(monkeypatch):
     flags, so a newer jaxlib must not get it)."""
     import importlib.metadata
 
-    from diffimpact._cli._main import FAST_COMPILE_FLAG, use_fast_compile
+    from diffimpact._cli._jax_setup import FAST_COMPILE_FLAG, use_fast_compile
 
     monkeypatch.setattr(importlib.metadata, "version", lambda name: "0.10.2")
     env = {"XLA_FLAGS": "--xla_force_host_platform_device_count=2"}

@@ -4,7 +4,7 @@ JAX's persistent compilation cache skips compiling a program on a second
 run, not tracing it, and tracing a diffrax solve takes seconds.  The demo's
 four programs (three solves and a gradient) are pure functions of the impact
 speed, so they are exported once, serialised into the command line's cache
-folder (`compilation_cache_dir`, under ``exported/``), and a later run
+folder (`_jax_setup.compilation_cache_dir`, under ``exported/``), and a later run
 deserialises and calls them: no Python tracing at all.  A blob is keyed by
 the versions of diffimpact, JAX and jaxlib and the float width, so an
 upgrade traces afresh; an unreadable blob is traced again and replaced.
