@@ -281,3 +281,41 @@ def test_forward_mode_gradient_against_central_differences():
     _, d = jax.jit(lambda m: jax.jvp(spin, (m,), (jnp.ones_like(m),)))(mu)
     fd = (spin(mu + h) - spin(mu - h)) / (2 * h)
     assert abs(float(d) - float(fd)) <= 4e-7 * abs(float(fd))
+
+
+# Flat-face landings of bench_contact_space.py's random states (a capsule on
+# its side, a rounded square on a face), where the body's other end reaches
+# the flat within the contact: contact space once returned a COR of -2.3
+# (capsule) and -1.3 (square) without a word, against 0.16 and 0.50 from the
+# planar ODE.
+FLAT_LANDINGS = {
+    "capsule": (5.881e-4, 0.2671, -1.937, -7.435, 0.2964),
+    "polygon": (-1.452e-3, 1.484, -2.699, -1.398, 0.004109),
+}
+
+
+def _body_scene(kind, state):
+    shape, mass, inertia, com_x = BODIES[kind]
+    angle, vx, vy, w, mu = state
+    scene = S.PlanarBody(
+        mass, inertia, shape, STEEL, FLAT, orientation=angle, velocity_x=vx,
+        velocity_y=vy, angular_velocity=w, com_x=com_x,
+    )  # fmt: skip
+    return scene, di.Friction(mu)
+
+
+@pytest.mark.parametrize("kind", sorted(FLAT_LANDINGS))
+def test_a_second_point_at_the_flat_is_reported_not_solved(kind):
+    """Contact space freezes the contact point; where the body's deepest
+    point at the greatest compression or at separation is another one (a
+    second contact), the impact is reported, with the reason, not solved.
+    The same body landing tilted (0.3 rad) is solved as before."""
+    scene, friction = _body_scene(kind, FLAT_LANDINGS[kind])
+    res = di.simulate(scene, JG, "contact_space", friction=friction, throw=False)
+    assert res.result == di.RESULTS.contact_space_unsupported
+    assert math.isnan(float(res.cor_newton))
+    with pytest.raises(di.SimulationError, match="another point of the body"):
+        di.simulate(scene, JG, "contact_space", friction=friction)
+    tilted, _ = _body_scene(kind, (0.3, *FLAT_LANDINGS[kind][1:]))
+    ok = di.simulate(tilted, JG, "contact_space", friction=friction)
+    assert 0.3 < float(ok.cor_newton) < 0.8  # a steel-on-steel COR at ~2 m/s

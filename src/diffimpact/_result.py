@@ -73,8 +73,10 @@ class RESULTS(eqx.Enumeration):
         "diffimpact: method='contact_space' cannot take this impact: its "
         "contact point does not approach the flat, or sliding drives it into "
         "the flat (Painleve's paradox, k = a + sigma mu b <= 0), or its slip "
-        "changes phase more often than the contact-space solve resolves; use "
-        "method='smooth' (the planar ODE)"
+        "changes phase more often than the contact-space solve resolves, or "
+        "another point of the body reaches the flat during the contact (a flat "
+        "face landing: the contact point frozen at first contact no longer "
+        "holds); use method='smooth' (the planar ODE)"
     )
     invalid_input = (
         "diffimpact: an input lies outside its domain (a modulus <= 0, a "
