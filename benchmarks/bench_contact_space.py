@@ -13,7 +13,7 @@ vmapped, compiled, float64, per impact, measured in the same run.  Prints a
 table and writes ``benchmarks/contact_space.png``.
 
 Run: ``python benchmarks/bench_contact_space.py [N] [N_ODE]`` (defaults 1000
-and 200; a few minutes on 2 cores).
+and 1000; about 6 minutes on 2 cores).
 """
 
 from __future__ import annotations
@@ -166,7 +166,7 @@ def timed(fn, p):
     return out, time.perf_counter() - t
 
 
-def main(n=1000, n_ode=200):
+def main(n=1000, n_ode=1000):
     rng = np.random.default_rng(39)
     rows, worst_all = [], {}
     for name, (make, draw) in SCENES.items():
