@@ -294,28 +294,19 @@ FLAT_LANDINGS = {
 }
 
 
-def _body_scene(kind, state):
-    shape, mass, inertia, com_x = BODIES[kind]
-    angle, vx, vy, w, mu = state
-    scene = S.PlanarBody(
-        mass, inertia, shape, STEEL, FLAT, orientation=angle, velocity_x=vx,
-        velocity_y=vy, angular_velocity=w, com_x=com_x,
-    )  # fmt: skip
-    return scene, di.Friction(mu)
-
-
 @pytest.mark.parametrize("kind", sorted(FLAT_LANDINGS))
 def test_a_second_point_at_the_flat_is_reported_not_solved(kind):
     """Contact space freezes the contact point; where the body's deepest
     point at the greatest compression or at separation is another one (a
     second contact), the impact is reported, with the reason, not solved.
     The same body landing tilted (0.3 rad) is solved as before."""
-    scene, friction = _body_scene(kind, FLAT_LANDINGS[kind])
+    angle, vx, vy, w, mu = FLAT_LANDINGS[kind]
+    scene, friction = body(kind, angle, vx, vy, w), di.Friction(mu)
     res = di.simulate(scene, JG, "contact_space", friction=friction, throw=False)
     assert res.result == di.RESULTS.contact_space_unsupported
     assert math.isnan(float(res.cor_newton))
     with pytest.raises(di.SimulationError, match="another point of the body"):
         di.simulate(scene, JG, "contact_space", friction=friction)
-    tilted, _ = _body_scene(kind, (0.3, *FLAT_LANDINGS[kind][1:]))
+    tilted = body(kind, 0.3, vx, vy, w)
     ok = di.simulate(tilted, JG, "contact_space", friction=friction)
     assert 0.3 < float(ok.cor_newton) < 0.8  # a steel-on-steel COR at ~2 m/s
