@@ -40,7 +40,11 @@ def _clenshaw(coef, tau):
     arccos)`` form has an infinite one there).  A scan, not a Python loop:
     the series is evaluated at every Gauss node and in every Newton step of
     a segment, and the unrolled recurrence (24 terms) was over a third of a
-    planar fit's traced program, so of its compile time."""
+    planar fit's traced program, so of its compile time.  Except on an
+    accelerator: there each step of a scan is a loop iteration of its own
+    (kernel launches and a host round trip), and the unrolled recurrence fuses
+    into one kernel; a planar posterior on a GPU was bound by exactly these
+    iterations (benchmarks/RESULTS.md)."""
     y = 2.0 * tau - 1.0
 
     def step(carry, c):
@@ -48,7 +52,8 @@ def _clenshaw(coef, tau):
         return (c + 2.0 * y * b1 - b2, b1), None
 
     zero = jnp.zeros_like(y)
-    (b1, b2), _ = jax.lax.scan(step, (zero, zero), coef[:0:-1])
+    unroll = 1 if jax.default_backend() == "cpu" else coef.shape[0]
+    (b1, b2), _ = jax.lax.scan(step, (zero, zero), coef[:0:-1], unroll=unroll)
     return coef[0] + y * b1 - b2
 
 
