@@ -56,7 +56,6 @@ def test_no_malformed_node_id():
 EXTENDED_ONLY = {
     "tests/test_body_data.py::test_compliant_data_is_fitted_and_beats_the_rigid_laws",
     "tests/test_body_data.py::test_diverging_sensitivities_are_named",
-    "tests/test_cli_fit.py::test_fit_holdout_compares_the_model_with_the_rigid_laws",
     "tests/test_flexible_bar.py::test_flexible_critical_angle_and_its_gradient",
     "tests/test_multi.py::test_jackson_green_bar_gradients",
     "tests/test_multi.py::test_jackson_green_span_gradients_over_three_impacts",

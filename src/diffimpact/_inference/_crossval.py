@@ -12,7 +12,9 @@ from __future__ import annotations
 
 import dataclasses
 
+import equinox as eqx
 import jax
+import jax.numpy as jnp
 import numpy as np
 
 from .._io._data import ExperimentData, column_of, load_experiments
@@ -127,15 +129,39 @@ def _rows(data: ExperimentData, index: np.ndarray) -> ExperimentData:
     )
 
 
-def _check_held_out(experiment, test_data: ExperimentData, name: str) -> None:
+def _predict_rows(experiment, inputs, quantities: tuple, chunk):
+    """The result code and ``quantities`` of every row: one program per
+    model whatever its parameter values (the experiment is an argument, not
+    a constant of the program, and its numbers are made strongly typed: a
+    start value is a weakly typed array, a fitted one is not, and the two
+    would otherwise be two programs), shared by the check at the start values
+    and the prediction at the fitted ones."""
+
+    def strong(x):
+        return x.astype(x.dtype) if eqx.is_inexact_array(x) else x
+
+    experiment = jax.tree.map(strong, experiment)
+    return _predict_rows_jit(experiment, inputs, quantities, chunk)
+
+
+@eqx.filter_jit
+def _predict_rows_jit(experiment, inputs, quantities: tuple, chunk):
+    def one(row):
+        out = predict(experiment, row, throw=False)
+        # (a quantity the model does not predict: NaN; `fit` names it)
+        return out["result"]._value, {q: out.get(q, jnp.nan) for q in quantities}
+
+    return map_rows(one, inputs, chunk)
+
+
+def _check_held_out(
+    experiment, test_data: ExperimentData, name: str, quantities: tuple
+) -> None:
     """A ValueError naming the held-out rows that ``experiment`` (at its
     start values) cannot predict, with the first reason."""
-
-    def code(row):
-        return predict(experiment, row, throw=False)["result"]._value
-
     chunk = _chunk_size("auto", test_data.n)
-    codes = np.asarray(jax.jit(lambda x: map_rows(code, x, chunk))(test_data.inputs))
+    codes, _ = _predict_rows(experiment, test_data.inputs, quantities, chunk)
+    codes = np.asarray(codes)
     ok = int(RESULTS.successful._value)
     bad = np.nonzero(codes != ok)[0]
     if bad.size == 0:
@@ -221,14 +247,15 @@ def cross_validate(
     # Every row, held-out ones included, must be predictable at the start
     # values, as `fit` demands of the rows it fits: whether a row outside the
     # model stops the run must not depend on the draw.
+    wanted = {name: tuple(fitted_outputs(e)) for name, e in models.items()}
     for name, e in models.items():
-        _check_held_out(e, test_data, name)
+        _check_held_out(e, test_data, name, wanted[name])
     fits = {
         name: fit(
             train_data,
             e,
             free_of[name],
-            outputs=fitted_outputs(e),
+            outputs=list(wanted[name]),
             **{**fit_options, **options.get(name, {})},
         )
         for name, e in models.items()
@@ -242,16 +269,12 @@ def cross_validate(
         )
     measured = np.stack([test_data.outputs[q] for q in quantities], axis=1)
 
-    def held_out(experiment):
-        def one(row):
-            out = predict(experiment, row, throw=False)
-            return [out[q] for q in quantities]
-
+    def held_out(name, experiment):
         chunk = _chunk_size("auto", test_data.n)
-        pred = jax.jit(lambda x: map_rows(one, x, chunk))(test_data.inputs)
-        return np.stack([np.asarray(p) for p in pred], axis=1)
+        _, pred = _predict_rows(experiment, test_data.inputs, wanted[name], chunk)
+        return np.stack([np.asarray(pred[q]) for q in quantities], axis=1)
 
-    predicted = {name: held_out(f.experiment) for name, f in fits.items()}
+    predicted = {name: held_out(name, f.experiment) for name, f in fits.items()}
     rms, failed = {}, {}
     for name, p in predicted.items():
         err = p - measured
