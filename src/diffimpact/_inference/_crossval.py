@@ -24,8 +24,8 @@ from ._experiment import Experiment
 from ._fit import fit
 from ._fit_problem import failed_rows
 from ._fit_result import FitResult
-from ._predict import predict
-from ._residuals import _chunk_size, map_rows
+from ._predict import _predict_rows, predict
+from ._residuals import _chunk_size
 
 
 @dataclasses.dataclass(frozen=True)
@@ -129,7 +129,7 @@ def _rows(data: ExperimentData, index: np.ndarray) -> ExperimentData:
     )
 
 
-def _predict_rows(experiment, inputs, quantities: tuple, chunk):
+def _rows_predicted(experiment, inputs, quantities: tuple, chunk):
     """The result code and ``quantities`` of every row: one program per
     model whatever its parameter values (the experiment is an argument, not
     a constant of the program, and its numbers are made strongly typed: a
@@ -141,17 +141,14 @@ def _predict_rows(experiment, inputs, quantities: tuple, chunk):
         return x.astype(x.dtype) if eqx.is_inexact_array(x) else x
 
     experiment = jax.tree.map(strong, experiment)
-    return _predict_rows_jit(experiment, inputs, quantities, chunk)
+    return _rows_predicted_jit(experiment, inputs, quantities, chunk)
 
 
 @eqx.filter_jit
-def _predict_rows_jit(experiment, inputs, quantities: tuple, chunk):
-    def one(row):
-        out = predict(experiment, row, throw=False)
-        # (a quantity the model does not predict: NaN; `fit` names it)
-        return out["result"]._value, {q: out.get(q, jnp.nan) for q in quantities}
-
-    return map_rows(one, inputs, chunk)
+def _rows_predicted_jit(experiment, inputs, quantities: tuple, chunk):
+    out, codes = _predict_rows(experiment, inputs, chunk, guarded=True)
+    # (a quantity the model does not predict: NaN; `fit` names it)
+    return codes, {q: out.get(q, jnp.nan) for q in quantities}
 
 
 def _check_held_out(
@@ -160,7 +157,7 @@ def _check_held_out(
     """A ValueError naming the held-out rows that ``experiment`` (at its
     start values) cannot predict, with the first reason."""
     chunk = _chunk_size("auto", test_data.n)
-    codes, _ = _predict_rows(experiment, test_data.inputs, quantities, chunk)
+    codes, _ = _rows_predicted(experiment, test_data.inputs, quantities, chunk)
     codes = np.asarray(codes)
     ok = int(RESULTS.successful._value)
     bad = np.nonzero(codes != ok)[0]
@@ -271,7 +268,7 @@ def cross_validate(
 
     def held_out(name, experiment):
         chunk = _chunk_size("auto", test_data.n)
-        _, pred = _predict_rows(experiment, test_data.inputs, wanted[name], chunk)
+        _, pred = _rows_predicted(experiment, test_data.inputs, wanted[name], chunk)
         return np.stack([np.asarray(pred[q]) for q in quantities], axis=1)
 
     predicted = {name: held_out(name, f.experiment) for name, f in fits.items()}

@@ -311,13 +311,17 @@ def _predict_frame(experiment: Experiment, frame, throw: bool):
 
 
 @eqx.filter_jit
-def _predict_rows(experiment: Experiment, rows: dict, chunk: int | None):
+def _predict_rows(
+    experiment: Experiment, rows: dict, chunk: int | None, guarded: bool = False
+):
     """Every row's prediction and result code: vmapped, in chunks of
     `chunk` rows when given (a batch of ODE solves runs as long as its
-    longest).  Unguarded: `check_rows` checked every row first."""
+    longest).  Unguarded unless `guarded` (`_predict_frame`: `check_rows`
+    checked every row first; a guarded row outside its domain is
+    `invalid_input`)."""
 
     def one(row):
-        out = predict(experiment, row, throw=False, _guarded=False)
+        out = predict(experiment, row, throw=False, _guarded=guarded)
         code = out.pop("result")._value
         return out, code
 

@@ -75,7 +75,7 @@ _RESTITUTION_SEGMENTS = 3
 # of the 2,000 rows of benchmarks/bench_body_noisy.py every one was within
 # 1e-14 of its limit after 6 iterations (median 4) from the secant start;
 # the roots that converged only linearly were all roots at the bracket's start
-# (``f(lo) <= 1e-15 |f(hi)|``: a slip that is zero where the segment begins),
+# (``f(lo) <= 1.2e-15 |f(hi)|``: a slip that is zero where the segment begins),
 # which are taken there directly (`_AT_START`).
 _ROOT_ITERATIONS = 8
 _COARSE = 6
@@ -540,9 +540,10 @@ def solve_contact_space(scene, law, friction, settings) -> ImpactResult:
         )
     # Never a silent NaN: a non-finite outcome is reported.
     finite = jnp.all(jnp.isfinite(jnp.stack([t_end, st["pn"], st["pt"], st["vt"]])))
-    # In float32 a non-finite outcome is the precision's (22 of the 2,000
-    # ellipse rows of benchmarks/bench_body_noisy.py, none in float64), and
-    # the fix is float64, not another method.
+    # In float32 (without x64; with it, `simulate` solves in float64) a
+    # non-finite outcome is the precision's (18 of the 2,000 ellipse rows of
+    # benchmarks/bench_body_noisy.py, none in float64), and the fix is
+    # float64, not another method.
     lost = ~finite & (jnp.result_type(t_end) == jnp.float32)
     unresolved = (~st["separated"] & ~st["failed"]) | ~finite
     unsupported = ~approaches | st["painleve"] | unresolved | (st["turned"] & second)

@@ -65,35 +65,47 @@ def _quadrature(problem, bound, settings, scene=None, friction=None):
         return raw
 
     dtype = problem.velocity.dtype
-    if dtype != jnp.float32 or not jax.config.jax_enable_x64:
-        raw = solve(problem, bound, scene, friction)
-        if dtype == jnp.float32:
-            # (cor_tangential is inf by definition without a tangential
-            # approach: not a lost precision)
-            checked = {**raw, "tangential": dict(raw.get("tangential", {}))}
-            checked["tangential"].pop("cor_tangential", None)
-            finite = jnp.all(
-                jnp.stack(
-                    [
-                        jnp.all(jnp.isfinite(x))
-                        for x in jax.tree.leaves(checked)
-                        if eqx.is_inexact_array(x)
-                    ]
-                )
+    if _promotes(dtype):
+        return _in_float64(solve, dtype, problem, bound, scene, friction)
+    raw = solve(problem, bound, scene, friction)
+    if dtype == jnp.float32:
+        # (cor_tangential is inf by definition without a tangential
+        # approach: not a lost precision)
+        checked = {**raw, "tangential": dict(raw.get("tangential", {}))}
+        checked["tangential"].pop("cor_tangential", None)
+        finite = jnp.all(
+            jnp.stack(
+                [
+                    jnp.all(jnp.isfinite(x))
+                    for x in jax.tree.leaves(checked)
+                    if eqx.is_inexact_array(x)
+                ]
             )
-            raw["result"] = first_failure(
-                raw["result"],
-                RESULTS.where(finite, RESULTS.successful, RESULTS.precision_lost),
-            )
-        return raw
+        )
+        raw["result"] = first_failure(
+            raw["result"],
+            RESULTS.where(finite, RESULTS.successful, RESULTS.precision_lost),
+        )
+    return raw
+
+
+def _promotes(dtype) -> bool:
+    """Whether an impact in ``dtype`` is solved in float64 (float32 where
+    JAX has float64): the energy quadratures lose float32's precision near
+    a turning point."""
+    return dtype == jnp.float32 and jax.config.jax_enable_x64
+
+
+def _in_float64(solve, dtype, *args):
+    """``solve(*args)`` with every floating-point array in float64, its
+    outputs returned in ``dtype``."""
 
     def cast(tree, to):
         return jax.tree.map(
             lambda x: x.astype(to) if eqx.is_inexact_array(x) else x, tree
         )
 
-    raw = solve(*cast((problem, bound, scene, friction), jnp.float64))
-    return cast(raw, dtype)
+    return cast(solve(*cast(args, jnp.float64)), dtype)
 
 
 def _exact_tangential(scene, friction) -> bool:
@@ -174,6 +186,12 @@ def _bound_law(scene, law):
 
 
 def _contact_space(scene, law, friction, settings, n_history):
+    """Contact space: an energy quadrature like `_quadrature`, with its
+    float32 policy (float64 where JAX has it; without, a non-finite outcome
+    is `precision_lost`, in `solve_contact_space`)."""
+    dtype = scene.initial_state()[1].dtype
+    if _promotes(dtype):
+        return _in_float64(solve_contact_space, dtype, scene, law, friction, settings)
     return solve_contact_space(scene, law, friction, settings)
 
 
