@@ -1,14 +1,18 @@
 """Where users meet the library: predict's inputs, files, sweeps, fits, the
 CLI and the import itself."""
 
+import importlib.metadata
 import json
 import math
 import os
 import subprocess
 import sys
 
+import jax
+import jax.numpy as jnp
 import numpy as np
 import pytest
+from conftest import MASS, RADIUS, steel
 
 import diffimpact as di
 from diffimpact._cli._main import main
@@ -463,11 +467,10 @@ def test_the_command_line_picks_the_fast_compiling_code_generator(monkeypatch):
     measured, keeps what the user set, and leaves XLA's defaults alone with
     DIFFIMPACT_XLA_DEFAULTS=1 or on another jaxlib (XLA refuses unknown
     flags, so a newer jaxlib must not get it)."""
-    import importlib.metadata
-
+    from diffimpact import _compile
     from diffimpact._cli._jax_setup import FAST_COMPILE_FLAG, use_fast_compile
 
-    monkeypatch.setattr(importlib.metadata, "version", lambda name: "0.10.2")
+    monkeypatch.setattr(_compile, "jaxlib_series", lambda: "0.10")
     env = {"XLA_FLAGS": "--xla_force_host_platform_device_count=2"}
     assert use_fast_compile(env)
     assert env["XLA_FLAGS"].split() == [
@@ -480,8 +483,50 @@ def test_the_command_line_picks_the_fast_compiling_code_generator(monkeypatch):
     assert mine == {"XLA_FLAGS": "--xla_cpu_use_fusion_emitters=true"}
     off = {"DIFFIMPACT_XLA_DEFAULTS": "1"}
     assert not use_fast_compile(off) and "XLA_FLAGS" not in off
-    monkeypatch.setattr(importlib.metadata, "version", lambda name: "0.11.0")
+    monkeypatch.setattr(_compile, "jaxlib_series", lambda: "0.11")
     assert not use_fast_compile(env := {}) and env == {}
+
+
+def test_the_library_chooses_the_code_generator_for_its_own_programs(monkeypatch):
+    """Without the flag in ``XLA_FLAGS`` (a program that is not the command
+    line), the library compiles its own top-level programs with the same
+    choice, per program (`diffimpact._compile`): not when the user set the
+    emitters, turned it off, or on another jaxlib; and under ``jit``,
+    ``vmap``, ``grad`` and ``eval_shape`` (where JAX refuses options on a
+    nested program) the same numbers come out as from the eager call."""
+    from diffimpact import _compile
+
+    monkeypatch.setattr(_compile, "jaxlib_series", lambda: "0.10")
+    assert _compile.compiler_options({}) == _compile.FAST_COMPILE_OPTIONS
+    user = {"XLA_FLAGS": "--xla_cpu_use_fusion_emitters=true"}
+    assert _compile.compiler_options(user) == {}
+    assert _compile.compiler_options({"DIFFIMPACT_XLA_DEFAULTS": "1"}) == {}
+    monkeypatch.setattr(_compile, "jaxlib_series", lambda: "0.11")
+    assert _compile.compiler_options({}) == {}
+
+    # The suite runs with the flag in XLA_FLAGS (conftest), so the options
+    # are forced here to exercise the per-program path.
+    if importlib.metadata.version("jaxlib").rsplit(".", 1)[0] not in (
+        _compile.FAST_COMPILE_JAXLIB
+    ):
+        pytest.skip("the option is known to XLA on jaxlib 0.10 only")
+    options = dict(_compile.FAST_COMPILE_OPTIONS)
+    monkeypatch.setattr(_compile, "compiler_options", lambda *a: options)
+    body, flat = steel(jnp.inf), steel(300e6)
+
+    def cor(v):
+        scene = di.scenes.NormalImpact(MASS, RADIUS, body, flat, velocity=v)
+        return di.simulate(scene, di.JacksonGreen(), "quadrature").cor_newton
+
+    eager = float(cor(1.2))
+    assert 0.3 < eager < 1.0
+    assert float(jax.jit(cor)(1.2)) == pytest.approx(eager, rel=1e-12)
+    batch = jax.vmap(cor)(jnp.array([1.2, 1.2]))
+    np.testing.assert_allclose(np.asarray(batch), eager, rtol=1e-12)
+    assert jax.eval_shape(cor, 1.2).shape == ()
+    slope = float(jax.grad(cor)(1.2))
+    assert slope == pytest.approx((float(cor(1.2 + 1e-5)) - float(cor(1.2 - 1e-5)))
+                                  / 2e-5, rel=1e-5)  # fmt: skip
 
 
 @pytest.mark.parametrize(

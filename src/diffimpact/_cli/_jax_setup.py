@@ -6,6 +6,8 @@ from __future__ import annotations
 
 import os
 
+from .._compile import FAST_COMPILE_FLAG, fast_compile_wanted
+
 
 def compilation_cache_dir() -> str | None:
     """Where the command line keeps compiled programs between runs:
@@ -38,14 +40,10 @@ def use_compilation_cache() -> str | None:
 
 
 # XLA's CPU code generator by elemental emitters instead of its fusion
-# emitters (the default since jax 0.5): the same operations, rounded
-# differently in the last bits at most, compiled faster (measured with jaxlib
-# 0.10.2 on 2 cores: a gradient through the planar ODE 14.7 -> 8.9 s of XLA
-# compilation, the 2,000-row contact-space fit 11.1 -> 9.4 s in all, the demo
-# 9.1 -> 7.7 s) and running no slower.  Only on the jaxlib series where this
-# was measured: XLA refuses a flag it does not know, and is retiring this one.
-FAST_COMPILE_FLAG = "--xla_cpu_use_fusion_emitters=false"
-_FAST_COMPILE_JAXLIB = ("0.10",)
+# emitters, for every program of the process (the library chooses it for its
+# own programs only, `diffimpact._compile`): the same operations, rounded
+# differently in the last bits at most, compiled faster and running no
+# slower (benchmarks/RESULTS.md).
 
 
 def use_fast_compile(environ=os.environ) -> bool:
@@ -53,19 +51,11 @@ def use_fast_compile(environ=os.environ) -> bool:
     JAX's first computation); True when it is there.  Not when
     ``DIFFIMPACT_XLA_DEFAULTS=1`` (any value other than empty or ``0``), when
     ``XLA_FLAGS`` sets the emitters already, nor on a jaxlib series other
-    than those in `_FAST_COMPILE_JAXLIB`."""
-    from importlib.metadata import PackageNotFoundError, version
-
+    than those in `FAST_COMPILE_JAXLIB`."""
     flags = environ.get("XLA_FLAGS", "")
     if "xla_cpu_use_fusion_emitters" in flags:
         return FAST_COMPILE_FLAG in flags.split()
-    if environ.get("DIFFIMPACT_XLA_DEFAULTS", "") not in ("", "0"):
-        return False
-    try:
-        series = ".".join(version("jaxlib").split(".")[:2])
-    except PackageNotFoundError:
-        return False
-    if series not in _FAST_COMPILE_JAXLIB:
+    if not fast_compile_wanted(environ):
         return False
     environ["XLA_FLAGS"] = f"{flags} {FAST_COMPILE_FLAG}".strip()
     return True

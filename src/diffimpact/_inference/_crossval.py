@@ -17,6 +17,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from .._compile import filter_jit
 from .._io._data import ExperimentData, column_of, load_experiments
 from .._io._frames import optional
 from .._result import RESULTS
@@ -144,7 +145,7 @@ def _rows_predicted(experiment, inputs, quantities: tuple, chunk):
     return _rows_predicted_jit(experiment, inputs, quantities, chunk)
 
 
-@eqx.filter_jit
+@filter_jit
 def _rows_predicted_jit(experiment, inputs, quantities: tuple, chunk):
     out, codes = _predict_rows(experiment, inputs, chunk, guarded=True)
     # (a quantity the model does not predict: NaN; `fit` names it)

@@ -6,10 +6,11 @@ from __future__ import annotations
 import functools
 import math
 
-import equinox as eqx
 import jax
 import jax.numpy as jnp
 import optax
+
+from .._compile import filter_jit
 
 
 def _loss(u, problem):
@@ -24,7 +25,7 @@ def _optimiser(name: str, learning_rate: float) -> optax.GradientTransformation:
     return optax.adam(learning_rate) if name == "adam" else optax.lbfgs()
 
 
-@eqx.filter_jit
+@filter_jit
 def _step(problem, opt, name, u, state):
     loss = functools.partial(_loss, problem=problem)
     if name == "adam":

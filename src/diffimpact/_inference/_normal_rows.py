@@ -7,11 +7,11 @@ from __future__ import annotations
 from collections.abc import Mapping
 from typing import Any
 
-import equinox as eqx
 import jax.numpy as jnp
 import numpy as np
 
 from .._checks import as_float, is_traced
+from .._compile import filter_jit
 from .._laws._jackson_green import JacksonGreen
 from .._materials import Material
 from .._solve._settings import SolverSettings
@@ -141,7 +141,7 @@ def normal_impact(
     return out
 
 
-@eqx.filter_jit
+@filter_jit
 def _compiled_row(params, law, method, settings):
     return normal_impact(params, law=law, method=method, settings=settings)
 

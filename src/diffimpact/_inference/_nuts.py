@@ -11,6 +11,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from .._compile import filter_jit
 from ._residuals import _FAILED_RESIDUAL, _residuals
 
 # The sampler's coordinate is kept within |u| <= 12 (a factor e^12 = 1.6e5
@@ -82,7 +83,7 @@ def _adaptation(target: float):
     )
 
 
-@eqx.filter_jit
+@filter_jit
 def nuts_init(model: PosteriorModel, u0, imm0, target: float):
     (mm_init, _, _), (da_init, _, _) = _adaptation(target)
 
@@ -95,7 +96,7 @@ def nuts_init(model: PosteriorModel, u0, imm0, target: float):
     return jax.vmap(one)(u0, imm0)
 
 
-@eqx.filter_jit
+@filter_jit
 def nuts_chunk(
     model: PosteriorModel, carry: _Carry, steps: _Steps, target: float, depth: int
 ):

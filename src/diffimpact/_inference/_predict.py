@@ -6,12 +6,12 @@ from __future__ import annotations
 import contextlib
 import dataclasses
 
-import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
 
 from .._checks import inputs_guarded
+from .._compile import filter_jit
 from .._io._data import DataError, column_of, read_frame
 from .._io._frames import is_dataframe
 from .._result import RESULTS, result_name
@@ -310,7 +310,7 @@ def _predict_frame(experiment: Experiment, frame, throw: bool):
     return result
 
 
-@eqx.filter_jit
+@filter_jit
 def _predict_rows(
     experiment: Experiment, rows: dict, chunk: int | None, guarded: bool = False
 ):

@@ -9,6 +9,7 @@ import equinox as eqx
 import jax
 import jax.numpy as jnp
 
+from .._compile import filter_jit
 from .._result import RESULTS
 from ._experiment import Experiment, getter
 from ._predict import predict
@@ -166,7 +167,7 @@ def _value_and_jacobian(u, problem: _Problem):
 # Compiled once per problem structure (scene, law, free parameters, number of
 # rows), not per call: the problem is an argument, so a second fit of the same
 # kind in a process reuses the traced programs instead of tracing them again.
-@eqx.filter_jit
+@filter_jit
 def _predictions(problem: _Problem, u):
     return problem.predictions(u)
 

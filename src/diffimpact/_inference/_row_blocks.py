@@ -13,6 +13,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from .._compile import filter_jit
 from .._result import RESULTS
 from ._residuals import (
     _FAILED_RESIDUAL,
@@ -118,7 +119,7 @@ def known_fn(u, evaluated: _Evaluated):
     return _known(u, evaluated), None
 
 
-@eqx.filter_jit
+@filter_jit
 def _block_values_and_jacobian(problem: _Problem, u):
     jac, r = _value_and_jacobian(u, problem)
     shape = problem.mask.shape

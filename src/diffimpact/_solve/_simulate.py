@@ -22,6 +22,7 @@ from .._checks import (
     require_scalars,
     require_type,
 )
+from .._compile import filter_jit
 from .._laws._base import AbstractNormalLaw
 from .._laws._friction import Friction
 from .._result import (
@@ -122,7 +123,7 @@ def _exact_tangential(scene, friction) -> bool:
     )
 
 
-@eqx.filter_jit
+@filter_jit
 def _simulate(inputs, method, settings, n_history, throw, invalid=None):
     # `inputs`: (scene, law, friction).
     # `invalid`: from `guard(..., throw=False)` (a bad row is solved anyway,

@@ -70,6 +70,7 @@ from .._checks import (
     require_scalars,
     require_type,
 )
+from .._compile import filter_jit
 from .._laws._base import AbstractNormalLaw
 from .._laws._friction import Friction
 from .._result import finish, raise_if_failed, with_invalid
@@ -151,7 +152,7 @@ def _history(p: _Span, taus, ys, valid, y0, e0):
     return hist, h, ys
 
 
-@eqx.filter_jit
+@filter_jit
 def _simulate_span(scene, law, t_span, friction, settings, n_save, throw, bad=None):
     with inputs_guarded():
         out = _span_solve(scene, law, t_span, friction, settings, n_save)
