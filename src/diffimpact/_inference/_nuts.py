@@ -29,7 +29,7 @@ class PosteriorModel(eqx.Module):
 
     problem: object
     relative: jax.Array  # measured entries whose noise factor is integrated out
-    priors: tuple = eqx.field(static=True)
+    priors: tuple  # of `AbstractPrior`: numbers traced, the kinds static
     n_relative: int = eqx.field(static=True)
 
     def log_density(self, u):

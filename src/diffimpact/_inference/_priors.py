@@ -19,6 +19,13 @@ import jax.numpy as jnp
 import numpy as np
 
 
+def _number(value):
+    """A prior's number as a 0-d float64 NumPy array: a leaf that ``jit``
+    traces (one compiled sampler serves every prior of the same kind), and a
+    number to Python (comparisons, ``math.log``, formatting)."""
+    return np.asarray(float(value), dtype=np.float64)
+
+
 def _positive(name: str, value) -> float:
     value = float(value)
     if not (math.isfinite(value) and value > 0.0):
@@ -59,8 +66,8 @@ class NormalPrior(AbstractPrior):
     """Normal prior with `mean` and standard deviation `sd` (the parameter's
     units); on a positive parameter it is truncated at zero."""
 
-    mean: float = eqx.field(static=True, converter=float)
-    sd: float = eqx.field(static=True, converter=float)
+    mean: float = eqx.field(converter=_number)
+    sd: float = eqx.field(converter=_number)
 
     def __check_init__(self):
         _finite("NormalPrior.mean", self.mean)
@@ -68,7 +75,7 @@ class NormalPrior(AbstractPrior):
 
     @property
     def center(self) -> float:
-        return self.mean
+        return float(self.mean)
 
     def log_prob(self, x):
         return -0.5 * ((x - self.mean) / self.sd) ** 2
@@ -85,8 +92,8 @@ class LogNormalPrior(AbstractPrior):
     standard deviation `sigma` (``sigma = 1``: one standard deviation is a
     factor e = 2.72 either way)."""
 
-    median: float = eqx.field(static=True, converter=float)
-    sigma: float = eqx.field(static=True, converter=float)
+    median: float = eqx.field(converter=_number)
+    sigma: float = eqx.field(converter=_number)
 
     def __check_init__(self):
         for name in ("median", "sigma"):
@@ -98,7 +105,7 @@ class LogNormalPrior(AbstractPrior):
 
     @property
     def center(self) -> float:
-        return self.median
+        return float(self.median)
 
     def log_prob(self, x):
         z = jnp.log(x / self.median) / self.sigma
@@ -114,8 +121,8 @@ class LogNormalPrior(AbstractPrior):
 class AbstractBoundedPrior(AbstractPrior):
     """A prior on ``(lower, upper)``, which bounds the parameter."""
 
-    lower: float = eqx.field(static=True, converter=float)
-    upper: float = eqx.field(static=True, converter=float)
+    lower: float = eqx.field(converter=_number)
+    upper: float = eqx.field(converter=_number)
 
     def _check_bounds(self, each, form: str) -> None:
         """``each(name, value)`` on both bounds, then ``lower < upper``
@@ -129,7 +136,7 @@ class AbstractBoundedPrior(AbstractPrior):
 
     @property
     def support(self):
-        return (self.lower, self.upper)
+        return (float(self.lower), float(self.upper))
 
 
 class UniformPrior(AbstractBoundedPrior):
@@ -140,7 +147,7 @@ class UniformPrior(AbstractBoundedPrior):
 
     @property
     def center(self) -> float:
-        return 0.5 * (self.lower + self.upper)
+        return float(0.5 * (self.lower + self.upper))
 
     def log_prob(self, x):
         return jnp.zeros_like(x)
@@ -161,13 +168,13 @@ class LogUniformPrior(AbstractBoundedPrior):
 
     @property
     def center(self) -> float:
-        return math.sqrt(self.lower * self.upper)
+        return float(np.sqrt(self.lower * self.upper))
 
     def log_prob(self, x):
         return -jnp.log(x)
 
     def sample(self, key, shape):
-        lo, hi = math.log(self.lower), math.log(self.upper)
+        lo, hi = jnp.log(self.lower), jnp.log(self.upper)
         return jnp.exp(jax.random.uniform(key, shape, minval=lo, maxval=hi))
 
     def __str__(self) -> str:
