@@ -9,8 +9,11 @@ numpy and scipy, not the library: scipy's ``curve_fit`` for the covariance,
 and the posterior on a fine grid of the same likelihood and prior.
 """
 
+import logging
 import math
+import re
 
+import jax
 import numpy as np
 import pytest
 from conftest import MASS, RADIUS
@@ -266,7 +269,9 @@ def test_a_precise_posterior_is_the_least_squares_fit(tmp_path):
     the skew of t ~ E^(-2/5) is small).  Measured (seed 0): sd / SE 1.064,
     mean 0.04 sd from the optimum; against the grid, sd 6.5 % and mean 0.01
     sd off (seeds 1-4: -4 % to +3 % and up to 0.09 sd, the Monte-Carlo
-    scatter of ~1,000 effective draws)."""
+    scatter of ~1,000 effective draws).  A second posterior with a wider
+    prior compiles neither the sampler nor the model again (with the priors'
+    numbers static, as before, it compiled both)."""
     rng = np.random.default_rng(5)
     t = contact_time(E_TRUE, SPEEDS)
     noise = 0.01
@@ -308,3 +313,29 @@ def test_a_precise_posterior_is_the_least_squares_fit(tmp_path):
     assert abs(draws.mean() - mean) < 0.1 * grid_sd
     assert abs(sd - grid_sd) < 0.1 * grid_sd
     assert np.all(np.abs(np.quantile(draws, [0.05, 0.5, 0.95]) - q) < 0.2 * grid_sd)
+
+    # A prior's numbers are traced: another prior of the same kind runs the
+    # sampler and the model compiled above (only a few small eager
+    # operations of the setup and the diagnostics are compiled anew).
+    compiled = []
+
+    class Compiles(logging.Handler):
+        def emit(self, record):
+            m = re.match(r"Compiling jit\((\w+)\)", record.getMessage())
+            if m:
+                compiled.append(m.group(1))
+
+    handler = Compiles()
+    logging.getLogger("jax").addHandler(handler)
+    try:
+        with jax.log_compiles(True):
+            wider = di.posterior(
+                path, experiment(), free=["youngs_modulus"],
+                priors={"youngs_modulus": di.LogNormalPrior(E_TRUE, 0.5)},
+                num_samples=1000, num_warmup=300, num_chains=2, seed=0,
+            )  # fmt: skip
+    finally:
+        logging.getLogger("jax").removeHandler(handler)
+    programs = {"nuts_init", "nuts_chunk", "_predictions", "_simulate"}
+    assert compiled and not programs & set(compiled), compiled
+    assert wider.priors != r.priors and wider.converged
