@@ -199,6 +199,33 @@ def test_diverging_sensitivities_are_named(tmp_path):
         di.fit(path, start, ["mu"])
 
 
+def test_overflowing_sensitivities_reach_the_user_as_a_solver_error(
+    tmp_path, monkeypatch
+):
+    """The fast case of the test above: every Jacobian row of a normal-impact
+    fit scaled by 1e284 (the size the stick phase's sensitivities reached),
+    the rest of the fit as it is.  Levenberg-Marquardt's linear solve meets
+    the overflow, and the user sees the SolverError that names the solver
+    and what to change, not lineax's internal error."""
+    from diffimpact._inference import _row_blocks
+
+    exact = _row_blocks.RowBlocks._values_and_jacobian
+
+    def overflowing(self, u):
+        r, jac = exact(self, u)
+        return r, jac * 1e284
+
+    monkeypatch.setattr(_row_blocks.RowBlocks, "_values_and_jacobian", overflowing)
+    model = di.Experiment.default("normal_impact")
+    v = np.linspace(0.3, 2.0, 6)
+    cor = [float(di.predict(model, {"impact_velocity": x})["cor_normal"]) for x in v]
+    path = tmp_path / "cor.csv"
+    di.write_experiments(path, {"impact_velocity_m_s": v, "cor_normal": cor},
+                         scene="normal_impact", provenance="test")  # fmt: skip
+    with pytest.raises(di.SolverError, match=r"not finite .* Dopri8 at rtol=1e-11"):
+        di.fit(path, model, free="yield_strength", start={"yield_strength": 2e8})
+
+
 def _with_jacobian(states, flip=1.0):
     """The energetic law that makes the data, and the contact Jacobian
     columns the body's shape gives at ``states`` (angular parts times
