@@ -35,8 +35,8 @@ class NormalImpact(AbstractScene):
 
     mass: Array = eqx.field(converter=as_float)
     radius: Array = eqx.field(converter=as_float)
-    body: Material
-    flat: Material
+    body: Material  # the sphere's material
+    flat: Material  # the flat's (the half-space it strikes)
     # keyword-only: the state at first contact and the environment
     velocity: Array = eqx.field(converter=as_float, kw_only=True)
     gravity: Array = eqx.field(converter=as_float, default=0.0, kw_only=True)
