@@ -201,7 +201,12 @@ def test_bad_fit_requests(tmp_path, kwargs, match):
 def test_scene_and_columns_must_agree(tmp_path):
     p = tmp_path / "c.csv"
     p.write_text("impact_velocity_m_s,angular_velocity_rad_s\n1.0,3.0\n")
-    with pytest.raises(ValueError, match="does not predict"):
+    # (found when the residuals are traced, before any row is solved)
+    with pytest.raises(ValueError, match=r"c.csv: scene 'normal_impact' does not "
+                       r"predict \['angular_velocity'\] \(it predicts "
+                       r"\['contact_time', 'cor_normal', 'max_deflection', "
+                       r"'max_force', 'permanent_deformation', "
+                       r"'rebound_velocity'\]\)"):  # fmt: skip
         di.fit(p, "normal_impact", free="yield_strength")
     q = tmp_path / "d.csv"
     q.write_text("drop_height_m,cor_normal\n1.0,0.5\n")

@@ -42,7 +42,9 @@ from ._fit_result import FitResult, fit_result
 from ._lsq import _WARM_DIVERGED, least_squares
 from ._minimise import minimise
 from ._progress import Progress
+from ._residuals import UnpredictedQuantities
 from ._row_blocks import _REACH, RowBlocks, workers
+from ._scenes import scene_spec
 
 _SOLVERS = ("levenberg-marquardt", "gauss-newton", "adam", "lbfgs")
 
@@ -184,7 +186,10 @@ def fit(
         f"compiling the model for {len(free)} parameter(s) and "
         f"{int(problem.mask.sum())} measurements..."
     )
-    with bar.live(status) if bar else contextlib.nullcontext():
+    with (
+        bar.live(status) if bar else contextlib.nullcontext(),
+        _unpredicted_named(data, problem.experiment),
+    ):
         # Every row must be predictable at the start: name the ones that are not
         # before minutes of iterations.
         if not gauss_newton:
@@ -217,6 +222,20 @@ def fit(
         final=final,
         warm=warm_info,
     )
+
+
+@contextlib.contextmanager
+def _unpredicted_named(data, experiment):
+    """`UnpredictedQuantities` (raised while the residuals are traced) as the
+    ValueError that names the file, the scene and what to do."""
+    try:
+        yield
+    except UnpredictedQuantities as err:
+        raise ValueError(
+            f"{data.path}: scene {scene_spec(experiment.scene).name!r} does not "
+            f"predict {err.missing} (it predicts {err.predicted}); drop the "
+            "column(s) or choose the outputs to fit"
+        ) from None
 
 
 # Rows sorted by their step counts are solved in chunks of this size on a CPU:

@@ -77,6 +77,20 @@ def _chunk_size(chunk_size, n: int) -> int | None:
     return None if chunk_size is None or chunk_size >= n else chunk_size
 
 
+class UnpredictedQuantities(ValueError):
+    """A quantity to fit that the model does not predict, found while the
+    residuals are traced (before any row is solved); `fit` names the file
+    and the scene."""
+
+    def __init__(self, missing, predicted):
+        internal = ("result", "num_steps")  # the fit's own, not outputs
+        self.missing = list(missing)
+        self.predicted = sorted(q for q in predicted if q not in internal)
+        super().__init__(
+            f"the model does not predict {self.missing} (it predicts {self.predicted})"
+        )
+
+
 class _Problem(eqx.Module):
     """Everything the residual needs, passed as ``args`` (a pytree).  A row
     whose `mask` is all False is not fitted, and a chunk of such rows is not
@@ -113,6 +127,9 @@ class _Problem(eqx.Module):
             # `_check_bounds`); without the traced check's host callback JAX can
             # store the compiled fit on disk.
             out = predict(e, row, throw=False, _guarded=False, _steps=True)
+            missing = [q for q in self.quantities if q not in out]
+            if missing:  # (found while tracing, before any row is solved)
+                raise UnpredictedQuantities(missing, out)
             pred = jnp.stack([out[q] for q in self.quantities])
             return pred, out["result"]._value, out["num_steps"]
 
