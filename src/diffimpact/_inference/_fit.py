@@ -39,7 +39,7 @@ from ._fit_problem import (
     with_adjoint,
 )
 from ._fit_result import FitResult, fit_result
-from ._lsq import _WARM_DIVERGED, least_squares
+from ._lsq import _WARM_DIVERGED, compile_steps, least_squares
 from ._minimise import minimise
 from ._progress import Progress
 from ._residuals import UnpredictedQuantities
@@ -325,12 +325,17 @@ def _fit_least_squares(
         jacobian = _auto_jacobian(problem)
     if problem.chunk_size is not None and jacobian == "forward-mode":
         compiling = blocks.compile_jacobian(jnp.asarray(u0))
+    # (None without chunks: the skipped chunks are what makes it cheap)
+    k = _subsample_rows(subsample, n, len(problem.names), problem.chunk_size)
+    warm_tols = (max(rtol, _WARM_TOL), max(atol, _WARM_TOL))
+    specs = [(solver, *warm_tols), ("gauss-newton", rtol, atol)] if k else []
+    steps_compiling = compile_steps(
+        specs or [(solver, rtol, atol)], u0, n, problem.mask.shape[1]
+    )
     try:
         start = blocks.predictions(u0)
         check_predictions(problem, u0, data, "at the start values", start)
         steps = np.asarray(start[2])
-        # (None without chunks: the skipped chunks are what makes it cheap)
-        k = _subsample_rows(subsample, n, len(problem.names), problem.chunk_size)
         chosen = np.zeros(n, bool)
         if k:
             chosen[np.random.default_rng(0).choice(n, k, replace=False)] = True
@@ -343,6 +348,7 @@ def _fit_least_squares(
         blocks = RowBlocks(problem, order, n_blocks, jacobian=jacobian)
         if compiling is not None:
             compiling.join()
+        steps_compiling.join()
         with derivatives_named(problem.experiment.settings):
             u, done, warm_info = jnp.asarray(u0), 0, None
             warm_converged = rose = False
@@ -359,8 +365,8 @@ def _fit_least_squares(
                     if bar:
                         bar.label = f"{solver}, {k} rows"
                     u, done, warm_converged, _, _ = least_squares(
-                        warm, u, solver, max_steps, max(rtol, _WARM_TOL),
-                        max(atol, _WARM_TOL), bar, update_jacobian=math.inf,
+                        warm, u, solver, max_steps, *warm_tols, bar,
+                        update_jacobian=math.inf,
                         within=_WITHIN, absolute=absolute,
                         on_accept=saver.on_accept(solver, k),
                     )  # fmt: skip
@@ -395,6 +401,7 @@ def _fit_least_squares(
         blocks.close()
         if compiling is not None:  # (a fit stopped early: see compile_jacobian)
             compiling.join()
+        steps_compiling.join()
     return u, done + more, converged, final, warm_info, problem
 
 

@@ -23,6 +23,7 @@ runs where it is cheapest:
 from __future__ import annotations
 
 import math
+import threading
 
 import jax
 import jax.numpy as jnp
@@ -35,7 +36,7 @@ from ._residuals import (
     _step,
     _terminate,
 )
-from ._row_blocks import RowBlocks, known_fn
+from ._row_blocks import RowBlocks, _Evaluated, known_fn
 
 # Iterations whose cost has not decreased, after which the fit is stationary.
 _STALL = 4
@@ -122,6 +123,50 @@ def _lands_within(errors, within) -> bool:
     return theta < 0.5 and errors[-1] <= within * (1.0 - theta)
 
 
+def _solver(name: str, rtol: float, atol: float):
+    if name == "levenberg-marquardt":
+        return optx.LevenbergMarquardt(rtol=rtol, atol=atol)
+    return optx.GaussNewton(rtol=rtol, atol=atol)
+
+
+def compile_steps(specs, u0, n_rows: int, n_quantities: int) -> threading.Thread:
+    """Compile the step programs of the solvers ``specs`` (``(name, rtol,
+    atol)`` each, as `least_squares` will build them) for ``n_rows x
+    n_quantities`` residuals, in a thread of its own, at a stand-in point
+    (zero residuals, a Jacobian of full rank); ``join`` it before the first
+    `least_squares`.  Why: XLA compiles with the interpreter's lock released,
+    so started beside the model's own compilation (seconds, on one core)
+    these small programs are ready when the iterations start instead of
+    being compiled between them.  An error is kept in ``thread.error``: the
+    iterations compile the same programs and raise it where the caller sees
+    it."""
+    u = jnp.asarray(u0)
+    p, m = u.size, n_rows * n_quantities
+
+    def run():
+        try:
+            jac = jnp.eye(m, p, dtype=u.dtype)
+            ev = _Evaluated(jnp.zeros(m, u.dtype), jac, jnp.zeros(n_rows, bool))
+            f_struct, aux_struct = jax.eval_shape(lambda: known_fn(u, ev))
+            tags = frozenset()
+            for name, rtol, atol in specs:
+                solver = _solver(name, rtol, atol)
+                state = _init(solver, known_fn, u, ev, {}, f_struct, aux_struct, tags)
+                jax.block_until_ready(
+                    (
+                        _terminate(solver, known_fn, u, ev, {}, state, tags),
+                        _step(solver, known_fn, u, ev, {}, state, tags),
+                    )
+                )
+        except Exception as error:  # noqa: BLE001 (raised again by the iterations)
+            thread.error = error
+
+    thread = threading.Thread(target=run, name="compile-steps")
+    thread.error = None
+    thread.start()
+    return thread
+
+
 def least_squares(blocks: RowBlocks, u0, solver_name, max_steps, rtol, atol, bar,
                   first=0, stop_if_rising=False, update_jacobian=None,
                   within=None, absolute=False, on_accept=None):  # fmt: skip
@@ -153,10 +198,7 @@ def least_squares(blocks: RowBlocks, u0, solver_name, max_steps, rtol, atol, bar
     point is kept, not moved by the step.
     ``on_accept``: None, or called as ``on_accept(u, step, cost)`` at every
     accepted point (``step`` counted from ``first``), e.g. to save it."""
-    if solver_name == "levenberg-marquardt":
-        solver = optx.LevenbergMarquardt(rtol=rtol, atol=atol)
-    else:
-        solver = optx.GaussNewton(rtol=rtol, atol=atol)
+    solver = _solver(solver_name, rtol, atol)
     options, tags = {}, frozenset()
     u = jnp.asarray(u0)
     evaluated = blocks.evaluate(u)  # the first trial point is the start
