@@ -130,6 +130,24 @@ def test_cross_validation_requests_are_named(tmp_path, models, free, options, ma
         di.cross_validate(path, models, free, holdout=0.9, model_options=options)
 
 
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_a_row_outside_the_model_stops_cross_validation_whichever_side(tmp_path, seed):
+    """A row that no model can take (an impact speed that does not approach)
+    stops `cross_validate` with the message naming its line, before any fit,
+    whether the draw holds it out or fits it (one of the four lines held
+    out, the draws of seeds 0-2 put it on both sides)."""
+    path = tmp_path / "speeds.csv"  # (a negative speed is refused on reading)
+    di.write_experiments(
+        path, {"impact_velocity_m_s": [0.5, 1.0, 0.0, 2.0],
+               "cor_normal": [0.8, 0.7, 0.7, 0.6]},
+        scene="normal_impact", provenance="test",
+    )  # fmt: skip
+    model = di.Experiment.default("normal_impact")
+    with pytest.raises(ValueError, match=r"line \d+.*NormalImpact.velocity"):
+        di.cross_validate(path, {"a": model}, ["yield_strength"], holdout=0.25,
+                          seed=seed)  # fmt: skip
+
+
 @pytest.mark.parametrize(
     ("n", "away", "line"),
     [

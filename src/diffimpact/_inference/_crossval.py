@@ -25,7 +25,7 @@ from ._experiment import Experiment
 from ._fit import fit
 from ._fit_problem import failed_rows
 from ._fit_result import FitResult
-from ._predict import _predict_rows, predict
+from ._predict import _predict_rows, check_rows
 from ._residuals import _chunk_size
 
 
@@ -131,12 +131,14 @@ def _rows(data: ExperimentData, index: np.ndarray) -> ExperimentData:
 
 
 def _rows_predicted(experiment, inputs, quantities: tuple, chunk):
-    """The result code and ``quantities`` of every row: one program per
-    model whatever its parameter values (the experiment is an argument, not
-    a constant of the program, and its numbers are made strongly typed: a
-    start value is a weakly typed array, a fitted one is not, and the two
-    would otherwise be two programs), shared by the check at the start values
-    and the prediction at the fitted ones."""
+    """``(result codes, {quantity: values}, the names the model predicts)``
+    of every row: one program per model whatever its parameter values (the
+    experiment is an argument, not a constant of the program, and its
+    numbers are made strongly typed: a start value is a weakly typed array,
+    a fitted one is not, and the two would otherwise be two programs),
+    shared by the check at the start values and the prediction at the
+    fitted ones.  Unguarded: `check_rows` checked every row first, as `fit`
+    does (the traced checks made the program twice as long to compile)."""
 
     def strong(x):
         return x.astype(x.dtype) if eqx.is_inexact_array(x) else x
@@ -147,23 +149,29 @@ def _rows_predicted(experiment, inputs, quantities: tuple, chunk):
 
 @filter_jit
 def _rows_predicted_jit(experiment, inputs, quantities: tuple, chunk):
-    out, codes = _predict_rows(experiment, inputs, chunk, guarded=True)
-    # (a quantity the model does not predict: NaN; `fit` names it)
-    return codes, {q: out.get(q, jnp.nan) for q in quantities}
+    out, codes = _predict_rows(experiment, inputs, chunk)
+    # (a quantity the model does not predict: NaN, and not among the names,
+    # a static output of the program)
+    return codes, {q: out.get(q, jnp.nan) for q in quantities}, tuple(sorted(out))
 
 
 def _check_held_out(
     experiment, test_data: ExperimentData, name: str, quantities: tuple
-) -> None:
+) -> tuple:
     """A ValueError naming the held-out rows that ``experiment`` (at its
-    start values) cannot predict, with the first reason."""
+    start values) cannot predict, with the first reason; else the names of
+    the quantities it predicts."""
+    check_rows(
+        experiment, test_data.inputs,
+        test_data.path, test_data.lines, None, test_data.columns,
+    )  # fmt: skip
     chunk = _chunk_size("auto", test_data.n)
-    codes, _ = _rows_predicted(experiment, test_data.inputs, quantities, chunk)
+    codes, _, names = _rows_predicted(experiment, test_data.inputs, quantities, chunk)
     codes = np.asarray(codes)
     ok = int(RESULTS.successful._value)
     bad = np.nonzero(codes != ok)[0]
     if bad.size == 0:
-        return
+        return names
     raise ValueError(
         f"{test_data.path}: model {name!r} cannot predict {bad.size} held-out "
         f"row(s) at its start values: {failed_rows(codes, bad, test_data.lines)}"
@@ -231,23 +239,20 @@ def cross_validate(
     order = np.random.default_rng(seed).permutation(n)
     test, train = np.sort(order[:n_test]), np.sort(order[n_test:])
     train_data, test_data = _rows(data, train), _rows(data, test)
-    measured_q = [q for q, v in data.outputs.items() if np.any(np.isfinite(v))]
-    first = {q: v[0] for q, v in data.inputs.items()}
-
-    def fitted_outputs(e):
-        # What this model predicts of what the file measured (a rigid law
-        # has no contact time): each model is fitted to those.
-        if outputs is not None:
-            return list(outputs)
-        shapes = jax.eval_shape(lambda: predict(e, first))
-        return [q for q in measured_q if q in shapes]
+    measured_q = tuple(q for q, v in data.outputs.items() if np.any(np.isfinite(v)))
 
     # Every row, held-out ones included, must be predictable at the start
     # values, as `fit` demands of the rows it fits: whether a row outside the
-    # model stops the run must not depend on the draw.
-    wanted = {name: tuple(fitted_outputs(e)) for name, e in models.items()}
+    # model stops the run must not depend on the draw.  Each model is fitted
+    # to what it predicts of what the file measured (a rigid law has no
+    # contact time).
+    wanted = {}
     for name, e in models.items():
-        _check_held_out(e, test_data, name, wanted[name])
+        names = _check_held_out(e, test_data, name, measured_q)
+        wanted[name] = (
+            tuple(outputs) if outputs is not None
+            else tuple(q for q in measured_q if q in names)
+        )  # fmt: skip
     fits = {
         name: fit(
             train_data,
@@ -267,12 +272,12 @@ def cross_validate(
         )
     measured = np.stack([test_data.outputs[q] for q in quantities], axis=1)
 
-    def held_out(name, experiment):
+    def held_out(experiment):
         chunk = _chunk_size("auto", test_data.n)
-        _, pred = _rows_predicted(experiment, test_data.inputs, wanted[name], chunk)
+        _, pred, _ = _rows_predicted(experiment, test_data.inputs, measured_q, chunk)
         return np.stack([np.asarray(pred[q]) for q in quantities], axis=1)
 
-    predicted = {name: held_out(name, f.experiment) for name, f in fits.items()}
+    predicted = {name: held_out(f.experiment) for name, f in fits.items()}
     rms, failed = {}, {}
     for name, p in predicted.items():
         err = p - measured

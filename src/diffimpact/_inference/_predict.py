@@ -311,20 +311,25 @@ def _predict_frame(experiment: Experiment, frame, throw: bool):
 
 
 @filter_jit
-def _predict_rows(
-    experiment: Experiment, rows: dict, chunk: int | None, guarded: bool = False
-):
+def _predict_rows(experiment: Experiment, rows: dict, chunk: int | None):
     """Every row's prediction and result code: vmapped, in chunks of
     `chunk` rows when given (a batch of ODE solves runs as long as its
-    longest).  Unguarded unless `guarded` (`_predict_frame`: `check_rows`
-    checked every row first; a guarded row outside its domain is
-    `invalid_input`)."""
+    longest).  Unguarded: the callers checked every row first
+    (`check_rows`)."""
 
     def one(row):
-        out = predict(experiment, row, throw=False, _guarded=guarded)
+        out = predict(experiment, row, throw=False, _guarded=False)
         code = out.pop("result")._value
         return out, code
 
     if chunk is None:
         return jax.vmap(one)(rows)
-    return jax.lax.map(one, rows, batch_size=chunk)
+    # Padded to whole chunks (a repeat of the last row): `lax.map` would
+    # solve a remainder by a second copy of the program, compiled as well.
+    n = len(next(iter(rows.values())))
+    pad = -n % chunk
+    rows = jax.tree.map(
+        lambda v: jnp.concatenate([v, jnp.repeat(v[-1:], pad, axis=0)]), rows
+    )
+    out = jax.lax.map(one, rows, batch_size=chunk)
+    return jax.tree.map(lambda v: v[:n], out)

@@ -138,6 +138,21 @@ def workers() -> int:
     return max(1, min(8, cores))
 
 
+_SEEN: set = set()  # (function, problem structure, shapes) run in this process
+
+
+def _compiled(fn, block, u) -> bool:
+    """Whether ``fn(block, u)`` has run in this process (its program is
+    compiled); marks it as run."""
+    leaves, treedef = jax.tree.flatten((block, u))
+    shapes = tuple((np.shape(x), getattr(x, "dtype", type(x))) for x in leaves)
+    key = (fn, treedef, shapes)
+    if key in _SEEN:
+        return True
+    _SEEN.add(key)
+    return False
+
+
 class RowBlocks:
     """A residual problem split into blocks of rows of equal length, one per
     thread.  `rows[b]`: the file rows of block ``b`` in solving order (padded
@@ -210,7 +225,23 @@ class RowBlocks:
             out = fn(self.blocks[b], points[i])
             return jax.tree.map(np.asarray, jax.block_until_ready(out))
 
-        outs = [run(tasks[0])] if len(tasks) == 1 else list(self._pool.map(run, tasks))
+        first, left = [], tasks
+        if len(tasks) > 1 and not _compiled(fn, self.blocks[0], points[0]):
+            # The first run of a program traces and compiles it: in one
+            # thread, or every thread would (JAX does not wait for a
+            # compilation under way in another), each holding Python's lock
+            # to trace.  With chunks, on a block whose rows are all skipped
+            # (no row solved); without, the first task alone.
+            if self.problem.chunk_size is not None:
+                block = self.blocks[tasks[0][1]]
+                idle = eqx.tree_at(lambda b: b.mask, block, jnp.zeros_like(block.mask))
+                jax.block_until_ready(fn(idle, points[0]))
+            else:
+                first, left = [run(tasks[0])], tasks[1:]
+        if len(left) == 1:
+            outs = first + [run(left[0])]
+        else:
+            outs = first + list(self._pool.map(run, left))
         gathered = []
         for i in range(len(points)):
             mine = [(b, out) for (j, b), out in zip(tasks, outs, strict=True) if j == i]
