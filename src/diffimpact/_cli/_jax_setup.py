@@ -1,6 +1,8 @@
 """The command line's own JAX setup, made before its first computation: the
 persistent compilation cache's folder and XLA's faster-compiling CPU code
-generator.  A program of its own may choose these; the library never does."""
+generator for the whole process.  A program of its own may choose these; the
+library never sets them process-wide (it chooses the code generator for its
+own programs only, `diffimpact._compile`)."""
 
 from __future__ import annotations
 
