@@ -138,7 +138,7 @@ def _rows_predicted(experiment, inputs, quantities: tuple, chunk):
     a fitted one is not, and the two would otherwise be two programs),
     shared by the check at the start values and the prediction at the
     fitted ones.  Unguarded: `check_rows` checked every row first, as `fit`
-    does (the traced checks made the program twice as long to compile)."""
+    does."""
 
     def strong(x):
         return x.astype(x.dtype) if eqx.is_inexact_array(x) else x
