@@ -109,5 +109,12 @@ class Progress:
         self.message(text, live=True)
         try:
             yield self
+        except BaseException:
+            # the error's message starts on a line of its own
+            self._stop_ticker()
+            self.stream.write("\n")
+            self.stream.flush()
+            self.shown = 0
+            raise
         finally:
             self._stop_ticker()
