@@ -143,7 +143,8 @@ def test_the_nuts_bar_counts_warm_up_and_sampling_divergences_apart():
 def test_a_compilation_shows_a_running_clock_that_stops():
     """A fit's first seconds are compilation with no step to show: the
     status line's clock keeps running (redrawn every 0.5 s), stops at the
-    first step, and stops on an error too (no clock writing over it)."""
+    first step, and stops on an error too (no clock writing over it), ending
+    its line."""
     import io
     import time
 
@@ -165,5 +166,6 @@ def test_a_compilation_shows_a_running_clock_that_stops():
         with bar.live("compiling..."):
             raise RuntimeError("boom")
     shown = stream.getvalue()
+    assert shown.endswith("\n")  # the error's message on a line of its own
     time.sleep(0.7)
     assert stream.getvalue() == shown
