@@ -284,6 +284,7 @@ def test_method_flag_chooses_the_solver(tmp_path, capsys, monkeypatch):
     err = capsys.readouterr().err
     assert "rigid Coulomb friction" in err and "Traceback" not in err
     assert len(err.strip().splitlines()) <= 2, err
+    assert "compiling" not in err, err  # refused before anything compiles
     assert not (tmp_path / "o").exists()
     with pytest.raises(SystemExit) as e:
         main(argv + ["--method", "ode"])

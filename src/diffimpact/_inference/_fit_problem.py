@@ -15,6 +15,8 @@ import numpy as np
 from .._io._data import ExperimentData, load_experiments
 from .._io._declared_body import check_declared
 from .._result import RESULTS, SolverError, result_name
+from .._solve._rigid import RigidContact
+from .._solve._simulate import check_structure
 from ..scenes._body import PlanarBody
 from ._experiment import (
     Experiment,
@@ -93,6 +95,12 @@ def resolve(data, experiment, free):
     check_rows(
         experiment, data.inputs, data.path, data.lines, data.checks, data.columns
     )
+    if not isinstance(experiment.law, RigidContact):
+        # a method that cannot take this scene, law or friction is refused
+        # before anything compiles, not from inside the first trace
+        check_structure(
+            experiment.scene, experiment.law, experiment.method, experiment.friction
+        )
     return data, experiment, free
 
 

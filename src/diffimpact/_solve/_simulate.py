@@ -270,6 +270,65 @@ def _physical(out):
     return RESULTS.where(ok, RESULTS.successful, RESULTS.unphysical)
 
 
+def check_structure(
+    scene: AbstractScene,
+    law: AbstractNormalLaw,
+    method: str = "auto",
+    friction=None,
+    n_history: int = 0,
+) -> None:
+    """The checks of `simulate` on types and structure alone (which method
+    can take this scene, law and friction), with no number read: a
+    ValueError naming why, as `simulate` raises it.  Callers that set up many
+    solves (`diffimpact.fit`) run it once before compiling anything."""
+    if method not in _METHODS:
+        raise ValueError(f"`method` must be one of {_METHODS}, got {method!r}")
+    require_type(scene, AbstractScene, "`scene` must be a diffimpact scene")
+    require_type(law, AbstractNormalLaw, "`law` must be a diffimpact contact law")
+    if n_history < 0 or (n_history > 0 and method not in ("auto", "smooth")):
+        raise ValueError(
+            "`n_history` must be >= 0, and histories come from method='smooth'"
+        )
+    require_type(
+        friction,
+        Friction,
+        "`friction` must be None or a diffimpact.Friction",
+        optional=True,
+    )
+    planar = isinstance(scene, AbstractPlanarScene)
+    if friction is not None and not planar:
+        raise ValueError(
+            f"`friction` acts on tangential motion, which {type(scene).__name__} "
+            "(a head-on impact) does not have; use a planar scene such as "
+            "scenes.SphereOnIncline"
+        )
+    if friction is not None and method == "events":
+        raise ValueError(
+            "friction is solved by method='smooth' (the ODE), or for a sphere "
+            "with rigid friction by 'quadrature' (closed form); not by 'events'"
+        )
+    if (
+        n_history > 0
+        and planar
+        and (friction is not None or not scene.normal_decouples)
+    ):
+        raise ValueError(
+            "`n_history` gives the history of a 1-DOF impact; this planar solve "
+            "has none (use n_history=0)"
+        )
+    if method == "contact_space":
+        contact_space_support(scene, law, friction)
+    elif (
+        isinstance(scene, AbstractPlanarScene)
+        and not scene.normal_decouples
+        and method not in ("auto", "smooth")
+    ):
+        raise ValueError(
+            f"{type(scene).__name__} is solved by method='smooth' only: its "
+            "rotation couples to the normal motion, even without friction"
+        )
+
+
 def simulate(
     scene: AbstractScene,
     law: AbstractNormalLaw,
@@ -334,52 +393,7 @@ def simulate(
     callback, and JAX does not store a program with one in its persistent
     compilation cache.)
     """
-    if method not in _METHODS:
-        raise ValueError(f"`method` must be one of {_METHODS}, got {method!r}")
-    require_type(scene, AbstractScene, "`scene` must be a diffimpact scene")
-    require_type(law, AbstractNormalLaw, "`law` must be a diffimpact contact law")
-    if n_history < 0 or (n_history > 0 and method not in ("auto", "smooth")):
-        raise ValueError(
-            "`n_history` must be >= 0, and histories come from method='smooth'"
-        )
-    require_type(
-        friction,
-        Friction,
-        "`friction` must be None or a diffimpact.Friction",
-        optional=True,
-    )
-    planar = isinstance(scene, AbstractPlanarScene)
-    if friction is not None and not planar:
-        raise ValueError(
-            f"`friction` acts on tangential motion, which {type(scene).__name__} "
-            "(a head-on impact) does not have; use a planar scene such as "
-            "scenes.SphereOnIncline"
-        )
-    if friction is not None and method == "events":
-        raise ValueError(
-            "friction is solved by method='smooth' (the ODE), or for a sphere "
-            "with rigid friction by 'quadrature' (closed form); not by 'events'"
-        )
-    if (
-        n_history > 0
-        and planar
-        and (friction is not None or not scene.normal_decouples)
-    ):
-        raise ValueError(
-            "`n_history` gives the history of a 1-DOF impact; this planar solve "
-            "has none (use n_history=0)"
-        )
-    if method == "contact_space":
-        contact_space_support(scene, law, friction)
-    elif (
-        isinstance(scene, AbstractPlanarScene)
-        and not scene.normal_decouples
-        and method not in ("auto", "smooth")
-    ):
-        raise ValueError(
-            f"{type(scene).__name__} is solved by method='smooth' only: its "
-            "rotation couples to the normal motion, even without friction"
-        )
+    check_structure(scene, law, method, friction, n_history)
     require_type(
         settings, SolverSettings, "`settings` must be a diffimpact.SolverSettings"
     )
