@@ -54,7 +54,6 @@ def test_no_malformed_node_id():
 # 42).  The list may only shrink: a row that gains a default-tier test must
 # leave it, and a new row must cite one.
 EXTENDED_ONLY = {
-    "tests/test_flexible_bar.py::test_flexible_critical_angle_and_its_gradient",
     "tests/test_multi.py::test_jackson_green_bar_gradients",
     "tests/test_multi.py::test_jackson_green_span_gradients_over_three_impacts",
     "tests/test_multi.py::test_slider_crank_gradients",
