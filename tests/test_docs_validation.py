@@ -50,20 +50,9 @@ def test_no_malformed_node_id():
 
 
 # Rows whose every cited test runs only with `pytest -m extended`, keyed by
-# the row's first node id: the default tier does not yet guard them (issue
-# 42).  The list may only shrink: a row that gains a default-tier test must
-# leave it, and a new row must cite one.  What keeps these four out: each
-# needs a reverse-mode program of its own (a multi-impact span, or the
-# flexible bar's indicator at its critical angle: the slowest programs of the
-# library to compile), and the spans a 1e-13 reference solve, more than the
-# default tier's 12 minutes allow beside its other cases (a forward-mode
-# case compiles faster only for the Jackson-Green slider-crank).
-EXTENDED_ONLY = {
-    "tests/test_flexible_bar.py::test_flexible_critical_angle_and_its_gradient",
-    "tests/test_multi.py::test_jackson_green_bar_gradients",
-    "tests/test_multi.py::test_jackson_green_span_gradients_over_three_impacts",
-    "tests/test_multi.py::test_slider_crank_gradients",
-}
+# the row's first node id: none (issue 42).  The set may only stay empty: a
+# new row must cite a test of the default tier.
+EXTENDED_ONLY: set[str] = set()
 
 
 def _rows():

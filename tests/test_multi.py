@@ -623,18 +623,34 @@ def _central_differences(fn, p0, rel_step=1e-3):
     return fd.T, np.asarray(count)
 
 
+@eqx.filter_jit
+def _jg_crank_vjp(p, w):
+    return jax.grad(lambda pp: _jg_crank(pp, SHORT)[0] @ w)(p)
+
+
+def _jacobian_by_rows(vjp, p0, n_out):
+    """The Jacobian at ``p0`` by ``n_out`` reverse passes of one compiled
+    program (``vjp(p, w)``: the gradient of ``w . outputs``), one per row.
+    ``jax.jacrev`` would batch the reverse pass over the rows: the same
+    numbers, but its program took longer to trace and compile (39 s against
+    30 s for the slider-crank's three Jackson-Green impacts, measured
+    2026-12-06), and each reverse pass runs in about 0.1 s."""
+    return np.stack([np.asarray(vjp(p0, w)) for w in jnp.eye(n_out)])
+
+
 @pytest.mark.slow
 def test_jackson_green_span_gradients_over_three_impacts():
-    """``jax.jacrev`` through a span with three Jackson-Green impacts
+    """The gradient through a span with three Jackson-Green impacts
     (slider-crank, default settings) against central differences of a 1e-13
     solve: impulse and peak force of each impact w.r.t. clearance and mu
-    agree to 1e-4 (measured 1.2e-5 with the probe tangent, 2.1e-5 before
-    it).  The maximum compression follows the penetration on the approach,
-    the law's switches are localised to ``switch_step`` and the probe sizes
-    the steps for the derivatives (`_history_rate`, `_Span.onset_rate`,
+    agree to 1e-4 (measured 3.2e-6 on 2026-12-06, 1.2e-5 in an earlier step
+    sequence, 2.1e-5 before the probe tangent).  The maximum compression
+    follows the penetration on the approach, the law's switches are
+    localised to ``switch_step`` and the probe sizes the steps for the
+    derivatives (`_history_rate`, `_Span.onset_rate`,
     `SpanSettings.tangent_rtol`)."""
     p0 = jnp.array([float(SliderCrank().clearance), 0.1])
-    jac = np.asarray(eqx.filter_jit(jax.jacrev(lambda p: _jg_crank(p, SHORT)[0]))(p0))
+    jac = _jacobian_by_rows(_jg_crank_vjp, p0, 6)
     fd, count = _central_differences(lambda p: _jg_crank(p, TIGHT), p0)
     assert np.all(count >= 3), count
     assert np.all(np.isfinite(jac))
@@ -655,27 +671,33 @@ def _jg_bar(p, settings):
     return jnp.concatenate([im.impulse[:3], im.velocity_after[:3, 2]]), im.count
 
 
-@pytest.mark.extended
-@pytest.mark.parametrize("height", [0.25, HEIGHT])
+@eqx.filter_jit
+def _jg_bar_vjp(p, w):
+    return jax.grad(lambda pp: _jg_bar(pp, BAR_SETTINGS)[0] @ w)(p)
+
+
+# 0.25 m in the default tier, 0.3 m (the same compiled programs) in the long one
+@pytest.mark.parametrize(
+    "height", [0.25, pytest.param(HEIGHT, marks=pytest.mark.extended)]
+)
 def test_jackson_green_bar_gradients(height):
-    """The bar's first three JG impacts, ``jax.jacrev`` at the default
-    settings against central differences of a 1e-13 solve: impulse and spin
-    after each impact w.r.t. the drop height (it moves every impact in time)
-    and the yield strength, to 1e-4 of the largest of the three impacts'
-    derivatives of that quantity (the third impulse's derivative w.r.t. the
-    height is 40 times smaller than the first's, and the central
-    differences' own error, ~1e-9 of a value over a 1e-3 step, is relative
-    to the values).  Measured: at most 3.3e-6 (0.25 m) and 1.3e-5 (0.3 m)
-    of that scale; entry by entry 8.3e-5 and 3.3e-5.
+    """The bar's first three JG impacts, the gradient at the default
+    settings (`_jacobian_by_rows`) against central differences of a 1e-13
+    solve: impulse and spin after each impact w.r.t. the drop height (it
+    moves every impact in time) and the yield strength, to 1e-4 of the
+    largest of the three impacts' derivatives of that quantity (the third
+    impulse's derivative w.r.t. the height is 40 times smaller than the
+    first's, and the central differences' own error, ~1e-9 of a value over
+    a 1e-3 step, is relative to the values).  Measured: at most 3.3e-6
+    (0.25 m) and 1.3e-5 (0.3 m) of that scale; entry by entry 8.3e-5 and
+    3.3e-5.
     What makes it hold is the probe tangent of `SpanSettings.tangent_rtol`
     and the velocities after an impact taken from the open side of its
     release (`_span_impacts`): without them 3.5e-3 (0.25 m) and 6.5e-5
     (0.3 m), the step sequence deciding; before the maximum compression
     followed the penetration, 0.27 .. 16 (height), up to 0.68 (yield)."""
     p0 = jnp.array([height, BAR.yield_strength])
-    jac = np.asarray(
-        eqx.filter_jit(jax.jacrev(lambda p: _jg_bar(p, BAR_SETTINGS)[0]))(p0)
-    )
+    jac = _jacobian_by_rows(_jg_bar_vjp, p0, 6)
     tight = SpanSettings(
         max_steps=65536, max_impacts=8, rtol=1e-13, atol=1e-15, tangent_rtol=None
     )
