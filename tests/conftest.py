@@ -2,7 +2,6 @@
 configuration to its host program, so the test suite (the host here) enables
 it before any array exists."""
 
-import gc
 import math
 import os
 import pathlib
@@ -29,9 +28,6 @@ os.environ.setdefault("DIFFIMPACT_CACHE_DIR", os.environ["JAX_COMPILATION_CACHE_
 from diffimpact._cli._jax_setup import use_fast_compile  # noqa: E402
 
 use_fast_compile()
-# Tracing makes millions of short-lived objects: Python's default thresholds
-# (700, 10, 10) ran the cyclic collector 7,800 times in those five files.
-gc.set_threshold(100_000, 50, 1000)
 
 import jax  # noqa: E402
 
@@ -151,13 +147,6 @@ def _release_compiled_programs():
     `jax.clear_caches()` is the fallback."""
     yield
     _release_programs()
-    # What survives a module (imports, the traces kept above) is moved out of
-    # the collector's sight: a full collection over JAX's caches took about
-    # 0.5 s each, 11 s of a 113 s run of five files (measured with
-    # gc.callbacks, 2026-12-06); with this and the thresholds above, 1.5 s,
-    # the peak memory unchanged (2.3 GB).
-    gc.collect()
-    gc.freeze()
 
 
 def _release_programs():
