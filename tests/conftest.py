@@ -143,7 +143,7 @@ def _release_compiled_programs():
     again, only lowered and loaded.  Against `jax.clear_caches()` after each
     module: 9:54 against 10:22 on clean clones of the default tier, 1,150 s
     against 1,211 s of test time (2026-12-06).  These are JAX's private
-    caches (jax 0.10): if one moves, the test below fails and
+    caches (jax 0.10): if one moves, tests/test_suite_machinery.py fails and
     `jax.clear_caches()` is the fallback."""
     yield
     _release_programs()
