@@ -574,8 +574,24 @@ def _first_impact(p, settings):
 
 
 @eqx.filter_jit
-def _vjp(p, w):
-    return jax.grad(lambda pp: _first_impact(pp, SHORT) @ w)(p)
+def _grad_along(outputs, p, w):
+    """The gradient of ``w . outputs(p)`` (``outputs`` a module-level
+    function: one compiled program for every ``w``)."""
+    return jax.grad(lambda pp: outputs(pp) @ w)(p)
+
+
+def _jacobian_by_rows(outputs, p0, n_out):
+    """The Jacobian of ``outputs`` at ``p0`` by ``n_out`` reverse passes of
+    one compiled program, one per row.  ``jax.jacrev`` would batch the
+    reverse pass over the rows: the same numbers, but its program took
+    longer to trace and compile (39 s against 30 s for the slider-crank's
+    three Jackson-Green impacts, measured 2026-12-06), and each reverse pass
+    runs in about 0.1 s."""
+    return np.stack([np.asarray(_grad_along(outputs, p0, w)) for w in jnp.eye(n_out)])
+
+
+def _first_impact_short(p):
+    return _first_impact(p, SHORT)
 
 
 @pytest.mark.slow
@@ -586,7 +602,7 @@ def test_slider_crank_gradients():
     contact stiffness and friction coefficient: 1e-4 (measured <= 3e-5)."""
     k0 = float(SliderCrank().hertz_stiffness)
     p0 = jnp.array([3e-5, k0, 0.1])
-    grads = np.stack([np.asarray(_vjp(p0, w)) for w in jnp.eye(3)])
+    grads = _jacobian_by_rows(_first_impact_short, p0, 3)
     assert np.all(np.isfinite(grads))
     # the six central-difference solves in one vmapped call
     steps = jnp.diag(1e-3 * p0)
@@ -623,19 +639,8 @@ def _central_differences(fn, p0, rel_step=1e-3):
     return fd.T, np.asarray(count)
 
 
-@eqx.filter_jit
-def _jg_crank_vjp(p, w):
-    return jax.grad(lambda pp: _jg_crank(pp, SHORT)[0] @ w)(p)
-
-
-def _jacobian_by_rows(vjp, p0, n_out):
-    """The Jacobian at ``p0`` by ``n_out`` reverse passes of one compiled
-    program (``vjp(p, w)``: the gradient of ``w . outputs``), one per row.
-    ``jax.jacrev`` would batch the reverse pass over the rows: the same
-    numbers, but its program took longer to trace and compile (39 s against
-    30 s for the slider-crank's three Jackson-Green impacts, measured
-    2026-12-06), and each reverse pass runs in about 0.1 s."""
-    return np.stack([np.asarray(vjp(p0, w)) for w in jnp.eye(n_out)])
+def _jg_crank_short(p):
+    return _jg_crank(p, SHORT)[0]
 
 
 @pytest.mark.slow
@@ -650,7 +655,7 @@ def test_jackson_green_span_gradients_over_three_impacts():
     derivatives (`_history_rate`, `_Span.onset_rate`,
     `SpanSettings.tangent_rtol`)."""
     p0 = jnp.array([float(SliderCrank().clearance), 0.1])
-    jac = _jacobian_by_rows(_jg_crank_vjp, p0, 6)
+    jac = _jacobian_by_rows(_jg_crank_short, p0, 6)
     fd, count = _central_differences(lambda p: _jg_crank(p, TIGHT), p0)
     assert np.all(count >= 3), count
     assert np.all(np.isfinite(jac))
@@ -671,9 +676,8 @@ def _jg_bar(p, settings):
     return jnp.concatenate([im.impulse[:3], im.velocity_after[:3, 2]]), im.count
 
 
-@eqx.filter_jit
-def _jg_bar_vjp(p, w):
-    return jax.grad(lambda pp: _jg_bar(pp, BAR_SETTINGS)[0] @ w)(p)
+def _jg_bar_default(p):
+    return _jg_bar(p, BAR_SETTINGS)[0]
 
 
 # 0.25 m in the default tier, 0.3 m (the same compiled programs) in the long one
@@ -697,7 +701,7 @@ def test_jackson_green_bar_gradients(height):
     (0.3 m), the step sequence deciding; before the maximum compression
     followed the penetration, 0.27 .. 16 (height), up to 0.68 (yield)."""
     p0 = jnp.array([height, BAR.yield_strength])
-    jac = _jacobian_by_rows(_jg_bar_vjp, p0, 6)
+    jac = _jacobian_by_rows(_jg_bar_default, p0, 6)
     tight = SpanSettings(
         max_steps=65536, max_impacts=8, rtol=1e-13, atol=1e-15, tangent_rtol=None
     )
